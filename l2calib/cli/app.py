@@ -1,0 +1,77 @@
+"""The ``l2calib`` command: one typer app; each command lives in its own module.
+
+Known errors (:class:`l2calib.errors.L2CalibError`) print one line
+``error: <what> — fix: <how>`` and exit with status 1.
+"""
+
+from __future__ import annotations
+
+import sys
+
+import typer
+
+from l2calib import __version__
+from l2calib.errors import L2CalibError
+
+app = typer.Typer(
+    name="l2calib",
+    help="Target-free IMU-LiDAR extrinsic calibration by reinforcement learning on SE(3).",
+    no_args_is_help=True,
+    rich_markup_mode="rich",
+    pretty_exceptions_enable=False,
+)
+
+
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"l2calib {__version__}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", callback=_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Target-free IMU-LiDAR extrinsic calibration by reinforcement learning on SE(3)."""
+
+
+# Command modules register themselves on ``app``; add new commands here (one line each).
+from l2calib.cli import cmd_plugins, cmd_recipe  # noqa: E402
+
+for _module in (cmd_plugins, cmd_recipe):
+    _module.register(app)
+
+
+def format_error(exc: L2CalibError) -> str:
+    """One-line rendering of a known error: ``error: <what> — fix: <how>``."""
+    return f"error: {exc}"
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Entry point of the ``l2calib`` console script."""
+    try:
+        app(args=argv, standalone_mode=False)
+    except L2CalibError as exc:
+        typer.echo(format_error(exc), err=True)
+        sys.exit(1)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        typer.echo("aborted", err=True)
+        sys.exit(130)
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        sys.exit(130)
+    except Exception as exc:  # click usage errors
+        import click
+
+        if isinstance(exc, click.ClickException):
+            exc.show()
+            sys.exit(exc.exit_code)
+        raise
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,112 @@
+"""Interfaces that plugins implement: odometry backends and reference sources.
+
+They live in the core package so that third-party plugins depend on ``l2calib`` only;
+``l2calib_backends`` re-exports :class:`OdometryBackend` for convenience.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from enum import IntEnum
+from typing import Literal
+
+import numpy as np
+import torch
+
+from l2calib.data import Segment
+from l2calib.trajectory import Trajectory
+
+
+@dataclass(frozen=True, eq=False)
+class ReferenceTrajectory:
+    """A reference trajectory of the LiDAR frame for one segment.
+
+    Attributes:
+        segment: Name of the segment it belongs to.
+        trajectory: Poses ``T_world_lidar`` (any world frame; the reward aligns it), int64 ns.
+        constrains: ``"pose"`` if orientations are meaningful, ``"position"`` if only positions
+            are (e.g. RTK): the reward then drops its rotation term.
+        source: Name of the reference plugin that produced it.
+    """
+
+    segment: str
+    trajectory: Trajectory
+    constrains: Literal["pose", "position"] = "pose"
+    source: str = ""
+
+
+class ReferenceSource(ABC):
+    """Produces a reference trajectory of the LiDAR for each segment (group ``l2calib.references``)."""
+
+    @abstractmethod
+    def compute(self, segments: Sequence[Segment]) -> list[ReferenceTrajectory]:
+        """Returns one reference per segment, in the same order."""
+
+
+class CandidateStatus(IntEnum):
+    """Outcome of one candidate extrinsic in :meth:`OdometryBackend.evaluate`."""
+
+    OK = 0
+    DIVERGED = 1  #: the filter blew up (huge innovation, NaN, covariance collapse)
+    FEW_CORRESPONDENCES = 2  #: too few valid point associations to update
+    FAILED = 3  #: any other per-candidate failure
+
+
+@dataclass(frozen=True, eq=False)
+class CandidateTrajectories:
+    """Estimated LiDAR trajectories of K candidates over one segment.
+
+    Attributes:
+        segment: Segment name.
+        stamps_ns: ``[N]`` int64 pose stamps, shared by all candidates (LiDAR clock).
+        T_world_lidar: ``[K, N, 4, 4]`` float64 estimated LiDAR poses (the IMU pose estimate
+            composed with the candidate extrinsic, as in the paper's reward).
+        valid: ``[K, N]`` bool, poses that exist (False after divergence).
+        status: ``[K]`` int64 :class:`CandidateStatus` codes.
+    """
+
+    segment: str
+    stamps_ns: np.ndarray
+    T_world_lidar: torch.Tensor
+    valid: torch.Tensor
+    status: torch.Tensor
+
+    @property
+    def num_candidates(self) -> int:
+        """K."""
+        return int(self.T_world_lidar.shape[0])
+
+
+class OdometryBackend(ABC):
+    """Tightly-coupled odometry that scores candidate extrinsics (group ``l2calib.backends``).
+
+    Batched by design: :meth:`evaluate` runs K candidates in one call. A backend speaks of sensor
+    measurements in general (``Segment.measurements``); a LiDAR backend reads ``Segment.scans``.
+    """
+
+    @abstractmethod
+    def prepare(
+        self, segments: Sequence[Segment], references: Sequence[ReferenceTrajectory]
+    ) -> None:
+        """One-off work before evaluations (downsampling, caching, map building)."""
+
+    @abstractmethod
+    def evaluate(
+        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
+    ) -> list[CandidateTrajectories]:
+        """Runs the odometry for K candidates on every prepared segment.
+
+        Args:
+            T_imu_lidar: ``[K, 4, 4]`` float64 candidate extrinsics (LiDAR -> IMU).
+            time_offset_s: ``[K]`` float64 candidate offsets (``t_imu = t_lidar + offset``) or
+                ``None`` for zero.
+
+        Returns:
+            One :class:`CandidateTrajectories` per prepared segment. Never raises for a single
+            bad candidate: that is reported in ``status`` and ``valid``; never returns NaN.
+        """
+
+    def close(self) -> None:  # noqa: B027 - optional hook
+        """Releases resources (worker pools, files). Optional."""

@@ -1,0 +1,1 @@
+"""Readers and writers: trajectory files (TUM, KITTI, CSV) and, later, bags."""

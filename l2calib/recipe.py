@@ -1,0 +1,272 @@
+"""Recipes: one YAML per sensor suite, validated by pydantic.
+
+A recipe names the plugins to use (reference, backend, policy) with their options, the topics
+and units of the input, the data selection and the training settings. Unknown keys and bad values
+fail with the dotted field path. ``l2calib recipe dump`` prints a complete default recipe.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Literal
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from l2calib.errors import ConfigError, PluginError
+
+
+class StrictModel(BaseModel):
+    """Base for config sections: unknown keys are errors, assignments are validated."""
+
+    model_config = ConfigDict(extra="forbid", validate_assignment=True)
+
+
+class LidarInput(StrictModel):
+    """Where and how to read the LiDAR."""
+
+    topic: str = Field("/points", description="sensor_msgs/PointCloud2 or livox CustomMsg topic")
+    time_field: str | None = Field(
+        None, description="per-point time field (t, time, timestamp, offset_time); null: detect"
+    )
+    time_unit: Literal["auto", "s", "ms", "us", "ns"] = "auto"
+    time_reference: Literal["auto", "relative", "absolute"] = Field(
+        "auto", description="per-point times relative to the header stamp, or absolute"
+    )
+    stamp_position: Literal["auto", "start", "end"] = Field(
+        "auto", description="whether the header stamp marks the scan start or end"
+    )
+    min_range_m: float = Field(0.5, gt=0)
+    max_range_m: float = Field(120.0, gt=0)
+
+
+class ImuInput(StrictModel):
+    """Where and how to read the IMU, and its noise (continuous-time densities)."""
+
+    topic: str = Field("/imu", description="sensor_msgs/Imu topic")
+    gyro_unit: Literal["auto", "rad/s", "deg/s"] = "auto"
+    accel_unit: Literal["auto", "m/s^2", "g"] = "auto"
+    gyro_noise_density: float = Field(1.7e-4, gt=0, description="rad/s/sqrt(Hz)")
+    accel_noise_density: float = Field(2.0e-3, gt=0, description="m/s^2/sqrt(Hz)")
+    gyro_bias_random_walk: float = Field(2.0e-5, gt=0, description="rad/s^2/sqrt(Hz)")
+    accel_bias_random_walk: float = Field(3.0e-4, gt=0, description="m/s^3/sqrt(Hz)")
+    gravity_m_s2: float = Field(9.81, gt=0)
+
+
+class DataConfig(StrictModel):
+    """Input topics, units and conventions."""
+
+    lidar: LidarInput = Field(default_factory=LidarInput)
+    imu: ImuInput = Field(default_factory=ImuInput)
+    rtk_topic: str | None = Field(None, description="sensor_msgs/NavSatFix topic (rtk reference)")
+
+
+class SelectionConfig(StrictModel):
+    """Data selection by IMU excitation (paper Sec. III-D)."""
+
+    enabled: bool = True
+    window_s: float = Field(10.0, gt=0, description="window length (s)")
+    step_s: float = Field(1.0, gt=0, description="stride between windows (s)")
+    budget_s: float = Field(30.0, gt=0, description="total length of the selection (s)")
+
+
+class PluginChoice(StrictModel):
+    """A plugin by name with its options (validated against the plugin's config model)."""
+
+    name: str
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class ExtrinsicPrior(StrictModel):
+    """An initial guess of ``T_imu_lidar`` with its uncertainty."""
+
+    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="roll, pitch, yaw; R = Rz(yaw) Ry(pitch) Rx(roll)"
+    )
+    sigma_translation_m: float = Field(0.1, gt=0)
+    sigma_rotation_deg: float = Field(10.0, gt=0)
+
+
+class PolicyChoice(PluginChoice):
+    """The policy plugin, plus an optional prior (none = start from no initial guess)."""
+
+    name: str = "bingham"
+    prior: ExtrinsicPrior | None = None
+
+
+class RewardConfig(StrictModel):
+    """Which reward turns trajectory agreement into a score."""
+
+    kind: Literal["paper", "position"] = "paper"
+    max_gap_s: float = Field(0.2, gt=0, description="largest reference gap to interpolate over")
+
+
+class TrainConfig(StrictModel):
+    """PPO settings and budgets."""
+
+    seed: int = 0
+    candidates_per_iteration: int = Field(32, ge=2)
+    max_iterations: int = Field(150, ge=1)
+    max_evaluations: int = Field(5000, ge=1)
+    estimate_time_offset: bool = False
+    lr: float = Field(3e-2, gt=0)
+    lr_schedule: Literal["constant", "cosine"] = "cosine"
+    ppo_epochs: int = Field(4, ge=1)
+    clip_epsilon: float = Field(0.2, gt=0)
+    entropy_coef: float = Field(1e-3, ge=0)
+    max_grad_norm: float = Field(1.0, gt=0)
+    workers: int = Field(1, ge=1, description="processes that run the odometry")
+    checkpoint_every: int = Field(10, ge=1)
+
+
+def _reference() -> PluginChoice:
+    return PluginChoice(name="kiss-icp")
+
+
+def _backend() -> PluginChoice:
+    return PluginChoice(name="iekf")
+
+
+class Recipe(StrictModel):
+    """A complete calibration recipe for one sensor suite."""
+
+    name: str = "default"
+    description: str = ""
+    data: DataConfig = Field(default_factory=DataConfig)
+    selection: SelectionConfig = Field(default_factory=SelectionConfig)
+    reference: PluginChoice = Field(default_factory=_reference)
+    backend: PluginChoice = Field(default_factory=_backend)
+    policy: PolicyChoice = Field(default_factory=PolicyChoice)
+    reward: RewardConfig = Field(default_factory=RewardConfig)
+    train: TrainConfig = Field(default_factory=TrainConfig)
+
+
+PLUGIN_SECTIONS = {
+    "reference": "l2calib.references",
+    "backend": "l2calib.backends",
+    "policy": "l2calib.policies",
+}
+
+
+# --------------------------------------------------------------------------- errors
+def _format_validation(exc: ValidationError, source: str, prefix: str = "") -> ConfigError:
+    lines = []
+    for err in exc.errors():
+        path = ".".join(str(p) for p in (*filter(None, [prefix]), *err["loc"]))
+        got = err.get("input")
+        got_text = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
+        msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
+        lines.append(f"{path}: {msg}{got_text}")
+    return ConfigError(
+        f"{source}: " + "; ".join(lines),
+        fix="correct these fields (see `l2calib recipe dump` for every key and its default)",
+    )
+
+
+# --------------------------------------------------------------------------- overrides
+def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
+    """Applies ``a.b=c`` overrides to a nested dict; values are parsed as YAML scalars/lists."""
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"override {item!r} is not of the form key=value",
+                              fix="write e.g. --set train.seed=3")
+        try:
+            value = yaml.safe_load(raw) if raw.strip() else ""
+        except yaml.YAMLError:
+            value = raw
+        node = data
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            child = node.get(part)
+            if child is None:
+                child = node[part] = {}
+            if not isinstance(child, dict):
+                raise ConfigError(f"override {item!r}: {part!r} is not a section")
+            node = child
+        node[parts[-1]] = value
+    return data
+
+
+# --------------------------------------------------------------------------- load / dump
+def recipe_from_dict(
+    data: dict[str, Any], source: str = "recipe", check_plugins: bool = True
+) -> Recipe:
+    """Validates a recipe dict (and, if asked, each plugin's options)."""
+    try:
+        recipe = Recipe.model_validate(data)
+    except ValidationError as exc:
+        raise _format_validation(exc, source) from None
+    if check_plugins:
+        validate_plugin_options(recipe, source)
+    return recipe
+
+
+def load_recipe(
+    path: str | Path | None, overrides: list[str] | None = None, check_plugins: bool = True
+) -> Recipe:
+    """Loads a recipe from YAML (``None``: the defaults), applies overrides and validates it."""
+    data: dict[str, Any] = {}
+    source = "default recipe"
+    if path is not None:
+        path = Path(path)
+        source = str(path)
+        if not path.is_file():
+            raise ConfigError(f"{path}: no such recipe file", fix="check the path (see recipes/)")
+        try:
+            loaded = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            where = f":{mark.line + 1}" if mark else ""
+            raise ConfigError(f"{path}{where}: not valid YAML ({exc})") from None
+        if loaded is None:
+            loaded = {}
+        if not isinstance(loaded, dict):
+            raise ConfigError(f"{path}: a recipe must be a YAML mapping, got {type(loaded).__name__}")
+        data = loaded
+    data = apply_overrides(data, list(overrides or []))
+    return recipe_from_dict(data, source, check_plugins)
+
+
+def validate_plugin_options(recipe: Recipe, source: str = "recipe") -> Recipe:
+    """Checks every plugin's options against its config model (imports only spec modules)."""
+    from l2calib.plugins import get_plugin
+
+    for section, group in PLUGIN_SECTIONS.items():
+        choice: PluginChoice = getattr(recipe, section)
+        try:
+            spec = get_plugin(group, choice.name)
+        except PluginError as exc:
+            raise ConfigError(f"{source}: {section}.name: {exc.message}", fix=exc.fix) from None
+        try:
+            spec.config.model_validate(choice.options)
+        except ValidationError as exc:
+            raise _format_validation(exc, source, f"{section}.options") from None
+    return recipe
+
+
+def filled_plugin_options(recipe: Recipe) -> tuple[Recipe, list[str]]:
+    """Returns the recipe with every plugin's options completed by its defaults.
+
+    Returns:
+        The completed recipe and a list of notices for plugins that are not installed.
+    """
+    from l2calib.plugins import get_plugin
+
+    notices = []
+    data = recipe.model_dump(mode="json")
+    for section, group in PLUGIN_SECTIONS.items():
+        choice = data[section]
+        try:
+            spec = get_plugin(group, choice["name"])
+        except PluginError as exc:
+            notices.append(f"{section}: {exc} (its options are left as given)")
+            continue
+        choice["options"] = spec.config.model_validate(choice["options"]).model_dump(mode="json")
+    return Recipe.model_validate(data), notices
+
+
+def dump_recipe(recipe: Recipe) -> str:
+    """The recipe as YAML text (keys in declaration order)."""
+    return yaml.safe_dump(recipe.model_dump(mode="json"), sort_keys=False, width=100)

@@ -1,0 +1,1 @@
+"""Policies for l2calib (entry-point group ``l2calib.policies``)."""
