@@ -17,7 +17,7 @@ All stamps are int64 nanoseconds on the recording's clock. ``time_offset_s`` can
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -151,3 +151,89 @@ class Segment:
     def duration_s(self) -> float:
         """Window length in seconds."""
         return (self.end_ns - self.start_ns) / NS_PER_S
+
+
+class ScanSource(Protocol):
+    """Where a sequence's exteroceptive measurements come from (memory, a bag, ...).
+
+    Implementations stream from disk when the data is large: only :meth:`load` materialises
+    measurements, and only those of the requested window.
+    """
+
+    @property
+    def stamps_ns(self) -> np.ndarray:
+        """``[S]`` int64 stamps of all measurements (scan start times), increasing."""
+        ...
+
+    def load(self, start_ns: int, end_ns: int) -> list[Measurement]:
+        """Measurements whose stamp lies in ``[start_ns, end_ns]``, in time order."""
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class InMemoryScans:
+    """A :class:`ScanSource` over a list of measurements already in memory."""
+
+    measurements: list[Measurement]
+
+    @property
+    def stamps_ns(self) -> np.ndarray:
+        """``[S]`` int64 stamps."""
+        return np.array([m.stamp_ns for m in self.measurements], dtype=np.int64)
+
+    def load(self, start_ns: int, end_ns: int) -> list[Measurement]:
+        """Measurements with ``start_ns <= stamp <= end_ns``."""
+        return [m for m in self.measurements if start_ns <= m.stamp_ns <= end_ns]
+
+
+@dataclass(frozen=True, eq=False)
+class Sequence:
+    """One recording: IMU samples in memory, exteroceptive measurements behind a source.
+
+    Attributes:
+        name: Unique name (e.g. the bag's stem).
+        imu: All IMU samples (small enough to hold: 1 h at 400 Hz is ~50 MB).
+        scans: Source of the LiDAR scans (or other measurements), loaded per window.
+        meta: Provenance (paths, topics, detected conventions), JSON-serialisable.
+    """
+
+    name: str
+    imu: ImuSamples
+    scans: ScanSource
+    meta: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def start_ns(self) -> int:
+        """Start of the time range covered by both IMU and scans."""
+        return int(max(self.imu.stamps_ns[0], self.scans.stamps_ns[0]))
+
+    @property
+    def end_ns(self) -> int:
+        """End of the time range covered by both IMU and scans."""
+        return int(min(self.imu.stamps_ns[-1], self.scans.stamps_ns[-1]))
+
+    def segment(self, start_ns: int | None = None, end_ns: int | None = None) -> Segment:
+        """Cuts a :class:`Segment` (whole overlap by default), loading its measurements.
+
+        The IMU samples keep a 0.1 s margin on each side so that propagation can start before
+        the first scan and deskewing can reach past the last point.
+        """
+        start = self.start_ns if start_ns is None else int(start_ns)
+        end = self.end_ns if end_ns is None else int(end_ns)
+        if end <= start:
+            raise DataError(
+                f"sequence {self.name}: empty window [{start}, {end}] ns",
+                fix="choose a window inside the sequence's IMU and LiDAR overlap",
+            )
+        margin = NS_PER_S // 10
+        name = f"{self.name}:{(start - self.start_ns) / NS_PER_S:.1f}-" \
+               f"{(end - self.start_ns) / NS_PER_S:.1f}"
+        return Segment(
+            name=name,
+            sequence=self.name,
+            start_ns=start,
+            end_ns=end,
+            imu=self.imu.slice_time(start - margin, end + margin),
+            measurements=self.scans.load(start, end),
+            meta=dict(self.meta),
+        )
