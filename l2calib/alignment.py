@@ -32,8 +32,10 @@ def umeyama(
         ``R [..., 3, 3]``, ``t [..., 3]`` and ``s [...]``.
     """
     src, dst = torch.broadcast_tensors(src, dst)
-    w = torch.ones(src.shape[:-1], dtype=src.dtype, device=src.device) if weights is None else (
-        weights.to(src.dtype).expand(src.shape[:-1])
+    w = (
+        torch.ones(src.shape[:-1], dtype=src.dtype, device=src.device)
+        if weights is None
+        else (weights.to(src.dtype).expand(src.shape[:-1]))
     )
     wsum = w.sum(-1).clamp_min(1e-300)
     mu_x = (w[..., None] * src).sum(-2) / wsum[..., None]  # eq. 34
@@ -171,8 +173,10 @@ def ape(
     if align:
         R, t, s = umeyama(T_est[:, :3, 3], T_ref[:, :3, 3], with_scale=with_scale)
     else:
-        R, t, s = torch.eye(3, dtype=T_est.dtype), torch.zeros(3, dtype=T_est.dtype), torch.ones(
-            (), dtype=T_est.dtype
+        R, t, s = (
+            torch.eye(3, dtype=T_est.dtype),
+            torch.zeros(3, dtype=T_est.dtype),
+            torch.ones((), dtype=T_est.dtype),
         )
     T_est_aligned = apply_similarity(T_est, R, t, s)
     e_t, e_r = pose_errors(T_est_aligned, T_ref)

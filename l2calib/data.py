@@ -226,8 +226,10 @@ class Sequence:
                 fix="choose a window inside the sequence's IMU and LiDAR overlap",
             )
         margin = NS_PER_S // 10
-        name = f"{self.name}:{(start - self.start_ns) / NS_PER_S:.1f}-" \
-               f"{(end - self.start_ns) / NS_PER_S:.1f}"
+        name = (
+            f"{self.name}:{(start - self.start_ns) / NS_PER_S:.1f}-"
+            f"{(end - self.start_ns) / NS_PER_S:.1f}"
+        )
         return Segment(
             name=name,
             sequence=self.name,

@@ -61,7 +61,7 @@ def quat_multiply(q1: Tensor, q2: Tensor) -> Tensor:
 
 
 def quat_to_matrix(quat_xyzw: Tensor) -> Tensor:
-    """Rotation matrices ``[..., 3, 3]`` from (not necessarily unit) xyzw quaternions ``[..., 4]``."""
+    """Rotation matrices ``[..., 3, 3]`` from xyzw quaternions ``[..., 4]`` (normalised first)."""
     q = quat_normalize(quat_xyzw)
     x, y, z, w = q.unbind(-1)
     xx, yy, zz = x * x, y * y, z * z
@@ -86,14 +86,42 @@ def matrix_to_quat(R: Tensor) -> Tensor:
     # Four candidate (unnormalised) quaternions, each well conditioned in its own region.
     cand = torch.stack(
         [
-            torch.stack([m[..., 2, 1] - m[..., 1, 2], m[..., 0, 2] - m[..., 2, 0],
-                         m[..., 1, 0] - m[..., 0, 1], 1 + trace], -1),
-            torch.stack([1 + m00 - m11 - m22, m[..., 0, 1] + m[..., 1, 0],
-                         m[..., 0, 2] + m[..., 2, 0], m[..., 2, 1] - m[..., 1, 2]], -1),
-            torch.stack([m[..., 0, 1] + m[..., 1, 0], 1 - m00 + m11 - m22,
-                         m[..., 1, 2] + m[..., 2, 1], m[..., 0, 2] - m[..., 2, 0]], -1),
-            torch.stack([m[..., 0, 2] + m[..., 2, 0], m[..., 1, 2] + m[..., 2, 1],
-                         1 - m00 - m11 + m22, m[..., 1, 0] - m[..., 0, 1]], -1),
+            torch.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 1, 0] - m[..., 0, 1],
+                    1 + trace,
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    1 + m00 - m11 - m22,
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 2, 1] - m[..., 1, 2],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1 - m00 + m11 - m22,
+                    m[..., 1, 2] + m[..., 2, 1],
+                    m[..., 0, 2] - m[..., 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1 - m00 - m11 + m22,
+                    m[..., 1, 0] - m[..., 0, 1],
+                ],
+                -1,
+            ),
         ],
         dim=-2,
     )  # [..., 4, 4]
@@ -144,7 +172,7 @@ def vee(S: Tensor) -> Tensor:
 
 
 def so3_exp(phi: Tensor) -> Tensor:
-    """Rotation matrices ``[..., 3, 3]`` from rotation vectors ``[..., 3]`` (radians, axis·angle)."""
+    """Rotation matrices ``[..., 3, 3]`` from rotation vectors ``[..., 3]`` (axis·angle, rad)."""
     theta2 = (phi * phi).sum(-1, keepdim=True)[..., None]
     theta = theta2.sqrt()
     small = theta2 < _small(phi.dtype)
@@ -205,7 +233,7 @@ def make_transform(R: Tensor, t: Tensor) -> Tensor:
 
 
 def transform_from_quat(quat_xyzw: Tensor, t: Tensor) -> Tensor:
-    """Homogeneous transforms ``[..., 4, 4]`` from xyzw quaternions and translations ``[..., 3]``."""
+    """Transforms ``[..., 4, 4]`` from xyzw quaternions and translations ``[..., 3]``."""
     return make_transform(quat_to_matrix(quat_xyzw), t)
 
 
@@ -229,7 +257,7 @@ def se3_exp(xi: Tensor) -> Tensor:
 
 
 def se3_log(T: Tensor) -> Tensor:
-    """Twists ``[rho, phi]`` ``[..., 6]`` of transforms ``[..., 4, 4]`` (inverse of :func:`se3_exp`)."""
+    """Twists ``[rho, phi]`` ``[..., 6]`` of transforms ``[..., 4, 4]`` (inverse of se3_exp)."""
     phi = so3_log(T[..., :3, :3])
     J = so3_left_jacobian(phi)
     rho = torch.linalg.solve(J, T[..., :3, 3:4])[..., 0]

@@ -38,7 +38,7 @@ class ReferenceTrajectory:
 
 
 class ReferenceSource(ABC):
-    """Produces a reference trajectory of the LiDAR for each segment (group ``l2calib.references``)."""
+    """Produces a reference trajectory of the LiDAR per segment (group ``l2calib.references``)."""
 
     @abstractmethod
     def compute(self, segments: Sequence[Segment]) -> list[ReferenceTrajectory]:

@@ -170,8 +170,10 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
     for item in overrides:
         key, sep, raw = item.partition("=")
         if not sep or not key.strip():
-            raise ConfigError(f"override {item!r} is not of the form key=value",
-                              fix="write e.g. --set train.seed=3")
+            raise ConfigError(
+                f"override {item!r} is not of the form key=value",
+                fix="write e.g. --set train.seed=3",
+            )
         try:
             value = yaml.safe_load(raw) if raw.strip() else ""
         except yaml.YAMLError:
@@ -223,7 +225,9 @@ def load_recipe(
         if loaded is None:
             loaded = {}
         if not isinstance(loaded, dict):
-            raise ConfigError(f"{path}: a recipe must be a YAML mapping, got {type(loaded).__name__}")
+            raise ConfigError(
+                f"{path}: a recipe must be a YAML mapping, got {type(loaded).__name__}"
+            )
         data = loaded
     data = apply_overrides(data, list(overrides or []))
     return recipe_from_dict(data, source, check_plugins)

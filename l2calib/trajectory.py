@@ -159,7 +159,10 @@ class Trajectory:
         return out
 
     def with_body(self, T_body_other: np.ndarray | torch.Tensor, other_frame: str) -> Trajectory:
-        """Trajectory of a frame rigidly attached to the body: ``T_world_other = T_world_body T_body_other``."""
+        """Trajectory of a frame rigidly attached to the body.
+
+        ``T_world_other = T_world_body @ T_body_other``.
+        """
         T = torch.as_tensor(T_body_other, dtype=torch.float64)
         return Trajectory.from_matrices(
             self.stamps_ns, self.matrices() @ T, other_frame, self.world_frame

@@ -40,8 +40,10 @@ def parse_seconds_ns(text: str) -> int:
     sign = -1 if text.startswith("-") else 1
     body = text.lstrip("+-")
     whole, _, frac = body.partition(".")
-    if not (whole or frac) or not (whole.isdigit() or whole == "") or not (
-        frac.isdigit() or frac == ""
+    if (
+        not (whole or frac)
+        or not (whole.isdigit() or whole == "")
+        or not (frac.isdigit() or frac == "")
     ):
         raise ValueError(f"not a number: {text!r}")
     frac = (frac + "000000000")[:9]
@@ -173,7 +175,8 @@ def read_kitti(
     if torch.any(ortho > 1e-3):
         bad = int(torch.argmax(ortho))
         raise FormatError(
-            f"{path}: pose {bad + 1} has a non-orthonormal rotation (error {float(ortho[bad]):.3g})",
+            f"{path}: pose {bad + 1} has a non-orthonormal rotation "
+            f"(error {float(ortho[bad]):.3g})",
             fix=f"write each line as '{KITTI_COLUMNS}'",
         )
     quat = geo.matrix_to_quat(R).numpy()
@@ -186,7 +189,9 @@ def write_kitti(path: str | Path, traj: Trajectory, times_path: str | Path | Non
     lines = [" ".join(f"{v:.9e}" for v in m[:3, :4].reshape(-1)) for m in T]
     Path(path).write_text("\n".join(lines) + "\n")
     if times_path is not None:
-        Path(times_path).write_text("\n".join(format_seconds(int(s)) for s in traj.stamps_ns) + "\n")
+        Path(times_path).write_text(
+            "\n".join(format_seconds(int(s)) for s in traj.stamps_ns) + "\n"
+        )
 
 
 # --------------------------------------------------------------------------- CSV
