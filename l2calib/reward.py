@@ -27,6 +27,7 @@ from torch import Tensor
 from l2calib.alignment import align_reference_to_estimates, pose_errors
 
 RewardKind = Literal["paper", "position"]
+AlignKind = Literal["se3", "sim3", "none"]
 
 
 @dataclass(frozen=True)
@@ -75,6 +76,7 @@ def trajectory_reward(
     use_rotation: bool = True,
     failed: Tensor | None = None,
     min_poses: int = 3,
+    align: AlignKind = "se3",
 ) -> RewardBreakdown:
     """Aligns the reference onto each estimate and scores the candidates.
 
@@ -88,6 +90,10 @@ def trajectory_reward(
             ``paper`` reward then keeps only its translation term.
         failed: ``[K]`` bool, candidates whose odometry failed: reward 0.
         min_poses: Candidates with fewer valid poses than this get reward 0.
+        align: ``"se3"`` (Umeyama on positions, the paper), ``"sim3"``, or ``"none"`` when the
+            estimate is already expressed in the reference's frame (e.g. a backend started from
+            the reference pose): position-only alignment of a nearly straight trajectory leaves
+            the rotation about its direction to noise, which then pollutes ``e_r``.
 
     Returns:
         A :class:`RewardBreakdown`.
@@ -99,7 +105,10 @@ def trajectory_reward(
     # so they cannot poison the masked sums of the alignment.
     eye = torch.eye(4, dtype=T_est_lidar.dtype, device=T_est_lidar.device)
     T_est_lidar = torch.where(valid[..., None, None], T_est_lidar, eye)
-    aligned = align_reference_to_estimates(T_ref_lidar, T_est_lidar, valid)
+    if align == "none":
+        aligned = T_ref_lidar.expand_as(T_est_lidar)
+    else:
+        aligned = align_reference_to_estimates(T_ref_lidar, T_est_lidar, valid, align == "sim3")
     e_t, e_r = pose_errors(T_est_lidar, aligned)
     w = valid.to(e_t.dtype)
     n = w.sum(-1)

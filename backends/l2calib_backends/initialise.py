@@ -1,0 +1,155 @@
+"""Starting states of K filters from the reference trajectory and the candidate extrinsics.
+
+A selected segment usually starts in motion, so the static initialisation of FAST-LIO does not
+apply. Instead, at the scan end where a filter starts (the first scan, or the first scan of each
+re-anchored window) every candidate starts from the reference LiDAR pose moved by its own
+extrinsic, with the velocity of its IMU origin from the reference motion, and with the
+gravity vector that best explains the segment's accelerometer readings for that extrinsic:
+
+    g_world = (v_imu(t_b) - v_imu(t_a)) / (t_b - t_a) - mean_s R_world_lidar(t_s) R_imu_lidarᵀ a_s
+
+(the mean specific force rotated to the world, corrected by the net velocity change).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from torch import Tensor
+
+from l2calib import geometry as geo
+from l2calib.errors import BackendError
+from l2calib.trajectory import Trajectory
+from l2calib_backends.prepare import PreparedSegment
+from l2calib_backends.state import BA, BG, DIM, GRAV, POS, TH, VEL, FilterState
+
+_H_S = 0.05  # half-width of the central differences (s)
+
+
+@dataclass(frozen=True)
+class ReferenceMotion:
+    """Extrinsic-independent reference quantities used to start the filters (world = reference).
+
+    Attributes:
+        R0, p0: ``[W, 3, 3]``, ``[W, 3]`` LiDAR poses at the W start scans.
+        v0, w0: ``[W, 3]`` LiDAR velocity and world angular velocity there.
+        R_imu: ``[S, 3, 3]`` LiDAR orientation at the IMU samples used for gravity.
+        accel: ``[S, 3]`` those accelerometer samples (m/s²).
+        R_a, v_a, w_a / R_b, v_b, w_b: LiDAR motion at the first and last scan end.
+        span_s: Time between first and last scan end (s).
+    """
+
+    R0: Tensor
+    p0: Tensor
+    v0: Tensor
+    w0: Tensor
+    R_imu: Tensor
+    accel: Tensor
+    R_a: Tensor
+    v_a: Tensor
+    w_a: Tensor
+    R_b: Tensor
+    v_b: Tensor
+    w_b: Tensor
+    span_s: float
+
+
+def _kinematics(ref: Trajectory, stamps_ns: np.ndarray, name: str):
+    h = int(_H_S * 1e9)
+    query = np.concatenate([stamps_ns - h, stamps_ns, stamps_ns + h])
+    lo, hi = ref.stamps_ns[0], ref.stamps_ns[-1]
+    query = np.clip(query, lo, hi)
+    order = np.argsort(query, kind="stable")
+    uniq, inv = np.unique(query[order], return_inverse=True)
+    sampled, valid = ref.sample(uniq, max_gap_s=1.0)
+    if not valid.all():
+        raise BackendError(
+            f"the reference trajectory does not cover segment {name}",
+            fix="use a reference that spans the selected segments",
+        )
+    T = sampled.matrices()
+    back = torch.from_numpy(np.empty_like(order))
+    back[torch.from_numpy(order)] = torch.from_numpy(inv)
+    T = T[back]
+    n = len(stamps_ns)
+    T_m, T_0, T_p = T[:n], T[n : 2 * n], T[2 * n :]
+    dt = torch.from_numpy((query[2 * n :] - query[:n]).astype(np.float64) * 1e-9).clamp_min(1e-3)
+    v = (T_p[:, :3, 3] - T_m[:, :3, 3]) / dt[:, None]
+    w = geo.so3_log(T_p[:, :3, :3] @ T_m[:, :3, :3].transpose(-1, -2)) / dt[:, None]
+    return T_0[:, :3, :3], T_0[:, :3, 3], v, w
+
+
+def reference_motion(
+    seg: PreparedSegment, reference: Trajectory, start_scans: list[int]
+) -> ReferenceMotion:
+    """Samples the reference at the start scans, the first/last scan end and the IMU samples."""
+    starts = seg.end_stamps_ns[start_scans]
+    R0, p0, v0, w0 = _kinematics(reference, starts, seg.name)
+    ends = seg.end_stamps_ns[[0, -1]]
+    R, _, v, w = _kinematics(reference, ends, seg.name)
+    imu_ns = seg.start_ns + np.round(seg.imu.t.numpy() * 1e9).astype(np.int64)
+    inside = (imu_ns >= ends[0]) & (imu_ns <= ends[1])
+    R_imu, _, _, _ = _kinematics(reference, imu_ns[inside], seg.name)
+    return ReferenceMotion(
+        R0=R0,
+        p0=p0,
+        v0=v0,
+        w0=w0,
+        R_imu=R_imu,
+        accel=seg.imu.accel[torch.from_numpy(inside)],
+        R_a=R[0],
+        v_a=v[0],
+        w_a=w[0],
+        R_b=R[1],
+        v_b=v[1],
+        w_b=w[1],
+        span_s=float((ends[1] - ends[0]) * 1e-9),
+    )
+
+
+def _imu_velocity(R_wl: Tensor, v_wl: Tensor, w_w: Tensor, t_li: Tensor) -> Tensor:
+    """Velocity ``[K, 3]`` of the IMU origin ``t_li [K, 3]`` (LiDAR frame) on the LiDAR body."""
+    arm = t_li @ R_wl.transpose(-1, -2)
+    return v_wl + torch.cross(w_w.expand_as(arm), arm, dim=-1)
+
+
+def initial_states(
+    motion: ReferenceMotion, T_imu_lidar: Tensor, sigmas: dict[str, float]
+) -> FilterState:
+    """States of K×W filters for candidate extrinsics ``[K, 4, 4]`` at the W start scans.
+
+    Filter ``b = k * W + w`` is candidate ``k`` started at start scan ``w``.
+    """
+    K, W = T_imu_lidar.shape[0], motion.R0.shape[0]
+    R_il, t_il = T_imu_lidar[:, :3, :3], T_imu_lidar[:, :3, 3]
+    R_li = R_il.transpose(-1, -2)
+    t_li = -(R_li @ t_il[..., None])[..., 0]  # IMU origin in the LiDAR frame, [K, 3]
+    # Gravity per candidate over the whole segment: [K, 3].
+    a_lidar = torch.einsum("kij,sj->ksi", R_li, motion.accel)
+    mean_force = torch.einsum("sij,ksj->ki", motion.R_imu, a_lidar) / max(len(motion.accel), 1)
+    v_a = _imu_velocity(motion.R_a, motion.v_a, motion.w_a, t_li)
+    v_b = _imu_velocity(motion.R_b, motion.v_b, motion.w_b, t_li)
+    g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
+    # Start states per (candidate, window).
+    R0 = motion.R0[None].expand(K, -1, -1, -1)  # [K, W, 3, 3]
+    R_wi = (R0 @ R_li[:, None]).reshape(K * W, 3, 3)
+    arm = torch.einsum("kwij,kj->kwi", R0, t_li)  # R_wl t_li, [K, W, 3]
+    p_wi = (motion.p0[None] + arm).reshape(K * W, 3)
+    v_wi = motion.v0[None] + torch.cross(motion.w0[None].expand_as(arm), arm, dim=-1)
+    v_wi = v_wi.reshape(K * W, 3)
+    P = torch.zeros(K * W, DIM, DIM, dtype=T_imu_lidar.dtype)
+    for block, key in (
+        (TH, "rot"),
+        (POS, "pos"),
+        (VEL, "vel"),
+        (BG, "bg"),
+        (BA, "ba"),
+        (GRAV, "grav"),
+    ):
+        idx = torch.arange(block.start, block.stop)
+        P[:, idx, idx] = sigmas[key] ** 2
+    zeros = torch.zeros(K * W, 3, dtype=T_imu_lidar.dtype)
+    g_b = g[:, None].expand(K, W, 3).reshape(K * W, 3)
+    return FilterState(R=R_wi, p=p_wi, v=v_wi, bg=zeros, ba=zeros.clone(), g=g_b, P=P)

@@ -1,0 +1,91 @@
+"""Plugin specs of the built-in backends (light: pydantic options + lazy factories)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, ConfigDict, Field
+
+from l2calib.plugins import PluginSpec
+
+
+class IekfOptions(BaseModel):
+    """Options of the batched FAST-LIO2-style IEKF backend."""
+
+    model_config = ConfigDict(extra="forbid")
+
+    map_mode: Literal["shared-map", "odometry"] = Field(
+        "shared-map",
+        description="shared-map: one map built once from the reference trajectory, queried by "
+        "all candidates; odometry: each candidate builds its own map as FAST-LIO does",
+    )
+    window_scans: int = Field(
+        10,
+        ge=0,
+        description="re-anchor the filters on the reference every this many scans (windows run "
+        "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO",
+    )
+    map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
+    scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of update points (m)")
+    points_per_scan: int = Field(400, ge=10, description="update points kept per scan")
+    map_points_per_scan: int = Field(1500, ge=10, description="points inserted per scan (odometry)")
+    min_range_m: float = Field(1.0, ge=0)
+    max_range_m: float = Field(100.0, gt=0)
+    max_iterations: int = Field(4, ge=1, le=10)
+    point_sigma_m: float = Field(0.05, gt=0, description="point-to-plane noise (m)")
+    plane_thickness_m: float = Field(0.05, gt=0, description="thickest voxel accepted as plane")
+    min_correspondences: int = Field(20, ge=3)
+    max_skipped_scans: int = Field(
+        3, ge=1, description="scans without update before a candidate counts as lost"
+    )
+    max_speed_m_s: float = Field(
+        1000.0, gt=0, description="faster than this counts as divergence (the run stops)"
+    )
+    init_sigma_rot_rad: float = Field(0.02, gt=0)
+    init_sigma_pos_m: float = Field(0.02, gt=0)
+    init_sigma_vel_m_s: float = Field(0.2, gt=0)
+    init_sigma_gyro_bias_rad_s: float = Field(0.01, gt=0)
+    init_sigma_accel_bias_m_s2: float = Field(0.1, gt=0)
+    init_sigma_gravity_m_s2: float = Field(0.1, gt=0)
+    threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
+    seed: int = 0
+
+
+def _make_iekf(config: IekfOptions, **context: Any) -> Any:
+    from l2calib_backends.iekf_backend import IekfBackend
+
+    return IekfBackend(config, **context)
+
+
+IEKF = PluginSpec(
+    name="iekf",
+    group="l2calib.backends",
+    config=IekfOptions,
+    factory=_make_iekf,
+    description="Batched FAST-LIO2-style iterated ESKF LIO (torch), K candidates per call",
+)
+
+
+class VioOptions(BaseModel):
+    """Options of the VIO slot (none yet: the backend is a documented placeholder)."""
+
+    model_config = ConfigDict(extra="allow")
+
+
+def _make_vio(config: VioOptions, **context: Any) -> Any:
+    from l2calib.errors import NotImplementedPluginError
+
+    raise NotImplementedPluginError(
+        "the 'vio' backend is a placeholder: no visual-inertial odometry is implemented yet",
+        fix="use backend.name: iekf or gtsam for LiDAR-IMU rigs; a VIO backend must implement "
+        "l2calib.interfaces.OdometryBackend over camera measurements (see docs/backends.md)",
+    )
+
+
+VIO = PluginSpec(
+    name="vio",
+    group="l2calib.backends",
+    config=VioOptions,
+    factory=_make_vio,
+    description="PLACEHOLDER slot for a visual-inertial backend: not implemented, fails if chosen",
+)

@@ -1,0 +1,119 @@
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+
+from l2calib import geometry as geo
+from l2calib.errors import NotImplementedPluginError
+from l2calib.interfaces import CandidateStatus
+from l2calib.plugins import get_plugin
+from l2calib.reward import trajectory_reward
+from l2calib_backends.propagation import ImuNoise, ImuTensors, propagate
+from l2calib_backends.state import DIM, FilterState
+
+
+def _backend(**options):
+    return get_plugin("l2calib.backends", "iekf").build(options)
+
+
+def _rewards(backend, segment, reference, T):
+    out = backend.evaluate(T)[0]
+    ref = reference.trajectory.interpolate(out.stamps_ns).matrices()
+    failed = out.status == int(CandidateStatus.DIVERGED)
+    return out, trajectory_reward(
+        ref, out.T_world_lidar, out.valid, failed=failed, align="none"
+    ).reward
+
+
+def test_propagation_matches_noise_free_imu_integration(sim):
+    run = sim(duration_s=5.0, imu={"noise": False}, lidar={"noise": False})
+    imu = run.imu
+    t_rel = (imu.stamps_ns - imu.stamps_ns[0]) * 1e-9
+    tensors = ImuTensors(
+        torch.from_numpy(t_rel), torch.from_numpy(imu.gyro_rad_s), torch.from_numpy(imu.accel_m_s2)
+    )
+    t0, t1 = 2.0, 3.0
+    h = 1e-3
+    stamps = imu.stamps_ns[0] + np.round(np.array([t0 - h, t0, t0 + h, t1]) * 1e9).astype(np.int64)
+    gt = run.gt_imu.interpolate(stamps).matrices()
+    v0 = (gt[2, :3, 3] - gt[0, :3, 3]) / (2 * h)
+    state = FilterState(
+        R=gt[1:2, :3, :3], p=gt[1:2, :3, 3], v=v0[None],
+        bg=torch.zeros(1, 3), ba=torch.zeros(1, 3), g=torch.tensor([[0.0, 0.0, -9.81]]),
+        P=torch.eye(DIM)[None] * 1e-4,
+    )  # fmt: skip
+    noise = ImuNoise(1e-3, 1e-2, 1e-5, 1e-4)
+    out, track = propagate(state, tensors, torch.tensor([t0]), torch.tensor([t1]), noise)
+    rot_err = float(geo.rotation_angle(gt[3, :3, :3].T @ out.R[0]))
+    pos_err = float((gt[3, :3, 3] - out.p[0]).norm())
+    assert np.degrees(rot_err) < 0.05, np.degrees(rot_err)
+    assert pos_err < 0.01, pos_err
+    assert torch.all(torch.linalg.eigvalsh(out.P[0]) > 0)
+    # The deskew track reproduces the propagated end pose.
+    R_end, p_end = track.poses_at(torch.tensor([[t1]]))
+    assert torch.allclose(R_end[0, 0], out.R[0], atol=1e-9)
+    assert torch.allclose(p_end[0, 0], out.p[0], atol=1e-9)
+
+
+@pytest.mark.parametrize(("map_mode", "window"), [("shared-map", 10), ("odometry", 0)])
+def test_perturbed_extrinsics_lower_the_reward(handheld_run, handheld_segment, map_mode, window):
+    seg, ref = handheld_segment
+    backend = _backend(map_mode=map_mode, window_scans=window)
+    backend.prepare([seg], [ref])
+    T_true = torch.from_numpy(handheld_run.T_imu_lidar)
+    xis = torch.zeros(7, 6)
+    xis[1, 3], xis[2, 4], xis[3, 5] = (np.radians(2.0),) * 3
+    xis[4, 0], xis[5, 1], xis[6, 2] = (0.05,) * 3
+    out, reward = _rewards(backend, seg, ref, T_true @ geo.se3_exp(xis))
+    assert torch.all(out.status == int(CandidateStatus.OK))
+    assert torch.all(reward[1:] < reward[0]), reward
+    assert torch.isfinite(out.T_world_lidar).all()
+
+
+def test_odometry_mode_tracks_with_the_true_extrinsic(handheld_run, handheld_segment):
+    seg, ref = handheld_segment
+    backend = _backend(map_mode="odometry", window_scans=0)
+    backend.prepare([seg], [ref])
+    out = backend.evaluate(torch.from_numpy(handheld_run.T_imu_lidar)[None])[0]
+    gt = handheld_run.gt_lidar.interpolate(out.stamps_ns).matrices()
+    err = (out.T_world_lidar[0, :, :3, 3] - gt[:, :3, 3]).norm(dim=-1)
+    assert out.valid.all() and int(out.status[0]) == int(CandidateStatus.OK)
+    assert float(err.pow(2).mean().sqrt()) < 0.05, err  # APE RMSE, as FAST-LIO is judged
+    assert float(err.max()) < 0.15, err
+
+
+def test_wildly_wrong_extrinsic_is_reported_not_crashed(handheld_run, handheld_segment):
+    seg, ref = handheld_segment
+    backend = _backend(points_per_scan=150)
+    backend.prepare([seg], [ref])
+    wrong = geo.se3_exp(torch.tensor([[2.0, -1.5, 1.0, 2.0, 1.0, -0.5]]))
+    T = torch.cat([torch.from_numpy(handheld_run.T_imu_lidar)[None], wrong])
+    out, reward = _rewards(backend, seg, ref, T)
+    assert int(out.status[0]) == int(CandidateStatus.OK)
+    assert int(out.status[1]) != int(CandidateStatus.OK)
+    assert torch.isfinite(out.T_world_lidar).all()
+    assert float(reward[1]) < 0.5 * float(reward[0])
+
+
+def test_time_offset_candidates(sim):
+    run = sim(rig={"time_offset_s": 0.02})
+    seq = run.sequence()
+    seg = seq.segment(seq.start_ns + 1_500_000_000, seq.end_ns)
+    from l2calib.interfaces import ReferenceTrajectory
+
+    ref = ReferenceTrajectory(seg.name, run.gt_lidar)
+    backend = _backend(points_per_scan=200)
+    backend.prepare([seg], [ref])
+    T = torch.from_numpy(run.T_imu_lidar)[None].expand(3, 4, 4)
+    out = backend.evaluate(T, torch.tensor([0.02, 0.0, 0.05]))[0]
+    gt = ref.trajectory.interpolate(out.stamps_ns).matrices()
+    reward = trajectory_reward(gt, out.T_world_lidar, out.valid, align="none").reward
+    assert reward[0] > reward[1] and reward[0] > reward[2], reward
+
+
+def test_vio_placeholder_fails_loudly():
+    spec = get_plugin("l2calib.backends", "vio")
+    assert "PLACEHOLDER" in spec.description
+    with pytest.raises(NotImplementedPluginError, match="placeholder"):
+        spec.build({})
