@@ -84,7 +84,14 @@ class OdometryBackend(ABC):
 
     Batched by design: :meth:`evaluate` runs K candidates in one call. A backend speaks of sensor
     measurements in general (``Segment.measurements``); a LiDAR backend reads ``Segment.scans``.
+
+    Attributes:
+        outputs_in_reference_frame: True if the estimates are expressed in the reference
+            trajectory's world frame (the backend starts from the reference pose), so the reward
+            needs no alignment.
     """
+
+    outputs_in_reference_frame: bool = False
 
     @abstractmethod
     def prepare(

@@ -68,6 +68,14 @@ class SelectionConfig(StrictModel):
     window_s: float = Field(10.0, gt=0, description="window length (s)")
     step_s: float = Field(1.0, gt=0, description="stride between windows (s)")
     budget_s: float = Field(30.0, gt=0, description="total length of the selection (s)")
+    min_gyro_rad_s: float = Field(
+        0.2, gt=0, description="per-axis RMS angular rate below which an axis is weak (rad/s)"
+    )
+    min_accel_m_s2: float = Field(
+        0.3,
+        gt=0,
+        description="per-axis RMS gravity-free acceleration below which an axis is weak (m/s^2)",
+    )
 
 
 class PluginChoice(StrictModel):
@@ -99,6 +107,11 @@ class RewardConfig(StrictModel):
     """Which reward turns trajectory agreement into a score."""
 
     kind: Literal["paper", "position"] = "paper"
+    align: Literal["auto", "se3", "sim3", "none"] = Field(
+        "auto",
+        description="alignment of the reference onto each estimate: auto = none when the backend "
+        "already outputs in the reference's frame, else se3 (Umeyama, as the paper)",
+    )
     max_gap_s: float = Field(0.2, gt=0, description="largest reference gap to interpolate over")
 
 
@@ -110,14 +123,25 @@ class TrainConfig(StrictModel):
     max_iterations: int = Field(150, ge=1)
     max_evaluations: int = Field(5000, ge=1)
     estimate_time_offset: bool = False
-    lr: float = Field(3e-2, gt=0)
-    lr_schedule: Literal["constant", "cosine"] = "cosine"
+    lr: float = Field(3e-2, gt=0, description="Adam rate of the spreads and the value head")
+    mean_step_scale: float = Field(
+        0.3,
+        ge=0,
+        description="Adam rate of the rotation/translation means = this × their current σ "
+        "(rad, m); 0: use lr for them too",
+    )
+    lr_schedule: Literal["constant", "cosine"] = "constant"
     ppo_epochs: int = Field(4, ge=1)
     clip_epsilon: float = Field(0.2, gt=0)
     entropy_coef: float = Field(1e-3, ge=0)
     max_grad_norm: float = Field(1.0, gt=0)
     workers: int = Field(1, ge=1, description="processes that run the odometry")
     checkpoint_every: int = Field(10, ge=1)
+    convergence_window: int = Field(15, ge=2, description="iterations the mode must stay put")
+    converged_step_deg: float = Field(0.05, gt=0, description="largest mode move in the window")
+    converged_step_m: float = Field(0.002, gt=0, description="largest mode move in the window")
+    converged_rotation_sigma_deg: float = Field(0.5, gt=0, description="largest rotation sigma")
+    converged_translation_sigma_m: float = Field(0.03, gt=0, description="largest trans. sigma")
 
 
 def _reference() -> PluginChoice:
@@ -205,17 +229,40 @@ def recipe_from_dict(
     return recipe
 
 
+BUILTIN_DIR = Path(__file__).parent / "recipes"
+
+
+def builtin_recipes() -> dict[str, Path]:
+    """Recipes shipped with l2calib (also in the repository's ``recipes/``), by name."""
+    return {p.stem: p for p in sorted(BUILTIN_DIR.glob("*.yaml"))}
+
+
+def resolve_recipe_path(path: str | Path) -> Path:
+    """``path`` itself if it is a file, else the built-in recipe of that name."""
+    p = Path(path)
+    if p.is_file():
+        return p
+    builtin = builtin_recipes()
+    if str(path) in builtin:
+        return builtin[str(path)]
+    raise ConfigError(
+        f"{path}: no such recipe file or built-in recipe",
+        fix=f"check the path, or use one of: {', '.join(builtin) or 'none'}",
+    )
+
+
 def load_recipe(
     path: str | Path | None, overrides: list[str] | None = None, check_plugins: bool = True
 ) -> Recipe:
-    """Loads a recipe from YAML (``None``: the defaults), applies overrides and validates it."""
+    """Loads a recipe, applies overrides and validates it.
+
+    ``path`` is a YAML file, the name of a built-in recipe, or ``None`` for the defaults.
+    """
     data: dict[str, Any] = {}
     source = "default recipe"
     if path is not None:
-        path = Path(path)
+        path = resolve_recipe_path(path)
         source = str(path)
-        if not path.is_file():
-            raise ConfigError(f"{path}: no such recipe file", fix="check the path (see recipes/)")
         try:
             loaded = yaml.safe_load(path.read_text())
         except yaml.YAMLError as exc:

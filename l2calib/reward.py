@@ -68,6 +68,82 @@ def lidar_poses_from_imu(T_world_imu: Tensor, T_imu_lidar: Tensor) -> Tensor:
     return T_world_imu @ T_imu_lidar[..., None, :, :]
 
 
+def aligned_errors(
+    T_ref_lidar: Tensor,
+    T_est_lidar: Tensor,
+    valid: Tensor | None = None,
+    align: AlignKind = "se3",
+) -> tuple[Tensor, Tensor]:
+    """Per-pose errors ``e_t [K, N]`` (m) and ``e_r [K, N]`` (rad) after aligning the reference.
+
+    Args:
+        T_ref_lidar: ``[N, 4, 4]`` (or ``[K, N, 4, 4]``) reference LiDAR poses at the estimate's
+            stamps (see :func:`l2calib.alignment.associate`).
+        T_est_lidar: ``[K, N, 4, 4]`` estimated LiDAR poses.
+        valid: ``[K, N]`` poses that exist in both (others may hold anything, even NaN).
+        align: ``"se3"`` (Umeyama on positions, the paper), ``"sim3"``, or ``"none"`` when the
+            estimate is already expressed in the reference's frame (e.g. a backend started from
+            the reference pose): position-only alignment of a nearly straight trajectory leaves
+            the rotation about its direction to noise, which then pollutes ``e_r``.
+    """
+    K, N = T_est_lidar.shape[:2]
+    if valid is None:
+        valid = torch.ones(K, N, dtype=torch.bool, device=T_est_lidar.device)
+    # Neutralise invalid poses so they cannot poison the masked sums of the alignment.
+    eye = torch.eye(4, dtype=T_est_lidar.dtype, device=T_est_lidar.device)
+    T_est_lidar = torch.where(valid[..., None, None], T_est_lidar, eye)
+    if align == "none":
+        aligned = T_ref_lidar.expand_as(T_est_lidar)
+    else:
+        aligned = align_reference_to_estimates(T_ref_lidar, T_est_lidar, valid, align == "sim3")
+    return pose_errors(T_est_lidar, aligned)
+
+
+def score(
+    e_t: Tensor,
+    e_r: Tensor,
+    valid: Tensor,
+    kind: RewardKind = "paper",
+    valid_r: Tensor | None = None,
+    failed: Tensor | None = None,
+    min_poses: int = 3,
+) -> RewardBreakdown:
+    """Turns per-pose errors ``[K, N]`` (possibly pooled from several segments) into rewards.
+
+    Args:
+        e_t: Translation errors (m).
+        e_r: Rotation errors (rad).
+        valid: Poses that enter the translation term.
+        kind: ``"paper"`` or ``"position"``.
+        valid_r: Poses that enter the rotation term (default: ``valid``); poses of
+            position-only references (RTK) are excluded here, which drops their rotation term.
+        failed: ``[K]`` candidates whose odometry failed: reward 0.
+        min_poses: Candidates with fewer valid poses than this get reward 0.
+    """
+    valid_r = valid if valid_r is None else valid_r & valid
+    w = valid.to(e_t.dtype)
+    n = w.sum(-1)
+    if kind == "paper":
+        reward = torch.exp(
+            -torch.sqrt((e_t * w).sum(-1) / (4 * n.clamp_min(1)))
+            - torch.sqrt((e_r * valid_r).sum(-1) / (math.pi**2 * valid_r.sum(-1).clamp_min(1)))
+        )
+    elif kind == "position":
+        reward = position_reward(e_t, valid)
+    else:
+        raise ValueError(f"unknown reward kind {kind!r}")
+    bad = n < min_poses
+    if failed is not None:
+        bad = bad | failed.to(torch.bool)
+    reward = torch.where(bad, torch.zeros_like(reward), reward)
+    mean_t = (e_t * w).sum(-1) / n.clamp_min(1)
+    n_r = valid_r.sum(-1)
+    mean_r = torch.where(
+        n_r > 0, (e_r * valid_r).sum(-1) / n_r.clamp_min(1), torch.full_like(mean_t, float("nan"))
+    )
+    return RewardBreakdown(reward, mean_t, mean_r, n.to(torch.int64))
+
+
 def trajectory_reward(
     T_ref_lidar: Tensor,
     T_est_lidar: Tensor,
@@ -78,52 +154,14 @@ def trajectory_reward(
     min_poses: int = 3,
     align: AlignKind = "se3",
 ) -> RewardBreakdown:
-    """Aligns the reference onto each estimate and scores the candidates.
+    """Aligns the reference onto each estimate and scores the candidates (one segment).
 
-    Args:
-        T_ref_lidar: ``[N, 4, 4]`` (or ``[K, N, 4, 4]``) reference LiDAR poses at the estimate's
-            stamps (see :func:`l2calib.alignment.associate`).
-        T_est_lidar: ``[K, N, 4, 4]`` estimated LiDAR poses.
-        valid: ``[K, N]`` poses that exist in both.
-        kind: ``"paper"`` or ``"position"``.
-        use_rotation: ``False`` drops the rotation term (position-only references); the
-            ``paper`` reward then keeps only its translation term.
-        failed: ``[K]`` bool, candidates whose odometry failed: reward 0.
-        min_poses: Candidates with fewer valid poses than this get reward 0.
-        align: ``"se3"`` (Umeyama on positions, the paper), ``"sim3"``, or ``"none"`` when the
-            estimate is already expressed in the reference's frame (e.g. a backend started from
-            the reference pose): position-only alignment of a nearly straight trajectory leaves
-            the rotation about its direction to noise, which then pollutes ``e_r``.
-
-    Returns:
-        A :class:`RewardBreakdown`.
+    See :func:`aligned_errors` and :func:`score`; ``use_rotation=False`` drops the rotation
+    term (position-only references).
     """
     K, N = T_est_lidar.shape[:2]
     if valid is None:
         valid = torch.ones(K, N, dtype=torch.bool, device=T_est_lidar.device)
-    # Backends must not return NaN, but poses marked invalid may hold anything: neutralise them
-    # so they cannot poison the masked sums of the alignment.
-    eye = torch.eye(4, dtype=T_est_lidar.dtype, device=T_est_lidar.device)
-    T_est_lidar = torch.where(valid[..., None, None], T_est_lidar, eye)
-    if align == "none":
-        aligned = T_ref_lidar.expand_as(T_est_lidar)
-    else:
-        aligned = align_reference_to_estimates(T_ref_lidar, T_est_lidar, valid, align == "sim3")
-    e_t, e_r = pose_errors(T_est_lidar, aligned)
-    w = valid.to(e_t.dtype)
-    n = w.sum(-1)
-    if kind == "paper":
-        reward = paper_reward(e_t, e_r if use_rotation else torch.zeros_like(e_r), valid)
-    elif kind == "position":
-        reward = position_reward(e_t, valid)
-    else:
-        raise ValueError(f"unknown reward kind {kind!r}")
-    bad = n < min_poses
-    if failed is not None:
-        bad = bad | failed.to(torch.bool)
-    reward = torch.where(bad, torch.zeros_like(reward), reward)
-    mean_t = (e_t * w).sum(-1) / n.clamp_min(1)
-    mean_r = (e_r * w).sum(-1) / n.clamp_min(1)
-    if not use_rotation:
-        mean_r = torch.full_like(mean_r, float("nan"))
-    return RewardBreakdown(reward, mean_t, mean_r, n.to(torch.int64))
+    e_t, e_r = aligned_errors(T_ref_lidar, T_est_lidar, valid, align)
+    valid_r = valid if use_rotation else torch.zeros_like(valid)
+    return score(e_t, e_r, valid, kind, valid_r, failed, min_poses)

@@ -91,6 +91,8 @@ class IekfBackend(OdometryBackend):
         imu: IMU noise densities from the recipe (defaults of :class:`ImuInput` if ``None``).
     """
 
+    outputs_in_reference_frame = True  # every filter starts from the reference pose
+
     def __init__(self, config: IekfOptions, imu: ImuInput | None = None, **_: object) -> None:
         self.config = config
         imu = imu or ImuInput()

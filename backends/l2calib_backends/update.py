@@ -33,6 +33,46 @@ class UpdateSettings:
     converge_eps: float = 1e-4
 
 
+def plane_normal_equations(
+    R: Tensor,
+    p: Tensor,
+    q_imu: Tensor,
+    mask: Tensor,
+    gate: Tensor,
+    query: PlaneQuery,
+    widen: bool,
+    w_sigma: float,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Point-to-plane normal equations of K IMU poses, shared by the IEKF and the GTSAM backend.
+
+    Associates ``p_w = R q + p`` with the map's planes and linearises ``z = nᵀ p_w + d`` in the
+    perturbation ``[δθ, δp]`` (``R = R̂ Exp(δθ)``, ``p = p̂ + δp``, world-frame ``δp``).
+
+    Args:
+        R: ``[K, 3, 3]`` IMU orientations ``R_world_imu``.
+        p: ``[K, 3]`` IMU positions ``t_world_imu`` (m).
+        q_imu: ``[K, m, 3]`` points in the IMU frame.
+        mask: ``[K, m]`` or ``[m]`` usable points.
+        gate: ``[m]`` or ``[K, m]`` largest accepted ``|z|`` (m).
+        query: Plane lookup (see :func:`iterated_update`).
+        widen: Ask for the wider neighbour search.
+        w_sigma: Weight ``1/σ²`` of a residual (1/m²).
+
+    Returns:
+        ``HᵀWH [K, 6, 6]``, ``HᵀWz [K, 6]`` and the ``[K]`` number of matched points.
+    """
+    p_w = q_imu @ R.transpose(-1, -2) + p[:, None, :]
+    normal, d, ok = query(p_w, widen)
+    z = (normal * p_w).sum(-1) + d
+    ok = ok & mask & (z.abs() < gate)
+    u = normal @ R  # Rᵀ n, row-wise
+    H = torch.cat([torch.cross(q_imu, u, dim=-1), normal], dim=-1)  # [K, m, 6]
+    Hw = H * (ok.to(R.dtype) * w_sigma)[..., None]
+    HtWH = Hw.transpose(-1, -2) @ H  # [K, 6, 6]
+    HtWz = (Hw * z[..., None]).sum(1)  # [K, 6]
+    return HtWH, HtWz, ok.sum(-1)
+
+
 def iterated_update(
     prior: FilterState,
     q_imu: Tensor,
@@ -57,7 +97,6 @@ def iterated_update(
         ``[K]`` number of correspondences used in the last iteration.
     """
     K = prior.num
-    dtype = prior.R.dtype
     P_inv = torch.linalg.inv(prior.P)
     gate = settings.gate_scale * ranges.clamp_min(0.1).sqrt()
     w_sigma = 1.0 / settings.point_sigma_m**2
@@ -65,17 +104,9 @@ def iterated_update(
     A = P_inv
     n_ok = torch.zeros(K, dtype=torch.int64)
     for it in range(settings.max_iterations):
-        p_w = q_imu @ x.R.transpose(-1, -2) + x.p[:, None, :]
-        normal, d, ok = query(p_w, it == 0)
-        z = (normal * p_w).sum(-1) + d
-        ok = ok & mask & (z.abs() < gate)
-        n_ok = ok.sum(-1)
-        u = normal @ x.R  # Rᵀ n, row-wise
-        H = torch.cat([torch.cross(q_imu, u, dim=-1), normal], dim=-1)  # [K, m, 6]
-        w = ok.to(dtype) * w_sigma
-        Hw = H * w[..., None]
-        HtWH = Hw.transpose(-1, -2) @ H  # [K, 6, 6]
-        HtWz = (Hw * z[..., None]).sum(1)  # [K, 6]
+        HtWH, HtWz, n_ok = plane_normal_equations(
+            x.R, x.p, q_imu, mask, gate, query, it == 0, w_sigma
+        )
         A = P_inv.clone()
         A[:, :6, :6] += HtWH
         rhs = -(P_inv @ x.boxminus(prior)[..., None])[..., 0]

@@ -38,9 +38,25 @@ def _root(
 
 
 # Command modules register themselves on ``app``; add new commands here (one line each).
-from l2calib.cli import cmd_plugins, cmd_recipe  # noqa: E402
+from l2calib.cli import (  # noqa: E402
+    cmd_calibrate,
+    cmd_demo,
+    cmd_inspect,
+    cmd_plugins,
+    cmd_recipe,
+    cmd_select,
+    cmd_simulate,
+)
 
-for _module in (cmd_plugins, cmd_recipe):
+for _module in (
+    cmd_demo,
+    cmd_calibrate,
+    cmd_simulate,
+    cmd_inspect,
+    cmd_select,
+    cmd_plugins,
+    cmd_recipe,
+):
     _module.register(app)
 
 

@@ -1,0 +1,132 @@
+"""``l2calib calibrate RECIPE --bag PATH... --out DIR``: the main job."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import typer
+
+_SET_HELP = "Override a recipe field, e.g. --set train.seed=3 (repeatable)."
+
+
+def run_calibration(
+    recipe,
+    out: Path,
+    bags: list[Path] | None = None,
+    sequences=None,
+    resume: bool = False,
+    force: bool = False,
+    truth=None,
+    console=None,
+):
+    """Runs the whole calibration with a live display and writes the output directory.
+
+    Returns:
+        The :class:`~l2calib.outputs.calibration_file.CalibrationResult`.
+    """
+    import numpy as np
+    from rich.console import Console
+
+    from l2calib.cli.live import CalibrationDisplay
+    from l2calib.outputs.writer import prepare_out_dir, write_outputs
+    from l2calib.pipeline import prepare_data, train_policy
+
+    console = console or Console()
+    out = prepare_out_dir(out, resume, force)
+    iterations = max(
+        1,
+        min(
+            recipe.train.max_iterations,
+            recipe.train.max_evaluations // recipe.train.candidates_per_iteration,
+        ),
+    )
+    with CalibrationDisplay(console, iterations) as display:
+        data = prepare_data(recipe, bags=bags, sequences=sequences, stage=display.stage)
+        for note in data.notes:
+            display.stage(f"[yellow]note[/]: {note}")
+        total = sum(s.duration_s for s in data.segments)
+        display.stage(f"{len(data.segments)} segment(s), {total:.1f} s of data")
+        result, outcome = train_policy(
+            recipe, data, out, resume=resume, progress=display.update, stage=display.stage
+        )
+    before = None
+    prior = recipe.policy.prior
+    if prior is not None:
+        import torch
+
+        from l2calib import geometry as geo
+
+        R = geo.euler_rpy_to_matrix(torch.deg2rad(torch.tensor(prior.rpy_deg, dtype=torch.float64)))
+        before = geo.make_transform(R, torch.tensor(prior.translation_m)).numpy()
+    console.print("[cyan]•[/] writing the report")
+    paths = write_outputs(out, recipe, result, outcome.history, data, truth=truth, before=before)
+    print_result(console, result, truth=None if truth is None else np.asarray(truth))
+    console.print(f"results in [bold]{out}[/]: {', '.join(p.name for p in paths.values())}")
+    return result
+
+
+def print_result(console, result, truth=None) -> None:
+    """Prints the extrinsic (and, when known, its error against the truth)."""
+    import numpy as np
+    import torch
+    from rich.table import Table
+
+    from l2calib import geometry as geo
+    from l2calib.outputs.calibration_file import CalibrationResult
+
+    table = Table(title="T_imu_lidar (LiDAR → IMU)", title_justify="left")
+    table.add_column("")
+    for col in ("x / roll", "y / pitch", "z / yaw"):
+        table.add_column(col, justify="right")
+    t = result.T_imu_lidar[:3, 3]
+    table.add_row("calibrated translation (m)", *(f"{v:+.4f}" for v in t))
+    table.add_row("calibrated rotation (deg)", *(f"{v:+.3f}" for v in result.rpy_deg))
+    if result.translation_sigma_m:
+        table.add_row("σ translation (cm)", *(f"{100 * v:.2f}" for v in result.translation_sigma_m))
+        table.add_row("σ rotation (deg)", *(f"{v:.3f}" for v in result.rotation_sigma_deg))
+    if truth is not None:
+        gt = CalibrationResult(truth)
+        table.add_row("ground truth translation (m)", *(f"{v:+.4f}" for v in truth[:3, 3]))
+        table.add_row("ground truth rotation (deg)", *(f"{v:+.3f}" for v in gt.rpy_deg))
+        err_t = np.abs(t - truth[:3, 3]) * 100
+        R_err = torch.from_numpy(truth[:3, :3].T @ result.T_imu_lidar[:3, :3])
+        err_r = torch.rad2deg(geo.matrix_to_euler_rpy(R_err)).abs().numpy()
+        table.add_row(
+            "|error| (cm / deg)", *(f"{e:.2f} / {r:.3f}" for e, r in zip(err_t, err_r, strict=True))
+        )
+        angle = float(torch.rad2deg(geo.rotation_angle(R_err)))
+        table.caption = (
+            f"error: {np.linalg.norm(t - truth[:3, 3]) * 100:.2f} cm, {angle:.3f} deg "
+            "(per-axis rotation error: Euler angles of R_gtᵀ R_est)"
+        )
+    console.print(table)
+    console.print(
+        f"final reward {result.final_reward:.4f}, {result.evaluations} odometry evaluations, "
+        f"{result.iterations} iterations, {result.wall_time_s:.0f} s ({result.stop_reason})"
+    )
+    if result.undetermined:
+        console.print(
+            "[bold yellow]warning[/]: the data could not determine: "
+            + "; ".join(result.undetermined)
+            + " — do not trust these components; record motion that excites them."
+        )
+
+
+def calibrate(
+    recipe: Path = typer.Argument(..., help="Recipe YAML (see recipes/)."),
+    bag: list[Path] = typer.Option(..., "--bag", "-b", help="Bag(s) to calibrate on."),
+    out: Path = typer.Option(..., "--out", "-o", help="Output directory."),
+    set_: list[str] = typer.Option([], "--set", help=_SET_HELP),
+    resume: bool = typer.Option(False, "--resume", help="Continue a killed run in --out."),
+    force: bool = typer.Option(False, "--force", help="Move an existing --out aside first."),
+) -> None:
+    """Calibrate T_imu_lidar from recordings, without targets or an initial guess."""
+    from l2calib.recipe import load_recipe
+
+    rec = load_recipe(recipe, set_)
+    run_calibration(rec, out, bags=bag, resume=resume, force=force)
+
+
+def register(app: typer.Typer) -> None:
+    """Adds the command to ``app``."""
+    app.command("calibrate")(calibrate)

@@ -1,0 +1,61 @@
+"""Live display of a calibration: stages, then per-iteration training progress (rich)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+from rich.console import Console, Group
+from rich.live import Live
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.table import Table
+
+
+class CalibrationDisplay:
+    """Shows what stage runs and, during training, iteration, reward, extrinsic and σ per axis."""
+
+    def __init__(self, console: Console, iterations: int) -> None:
+        self.console = console
+        self.progress = Progress(
+            TextColumn("[bold]{task.description}"),
+            BarColumn(),
+            MofNCompleteColumn(),
+            TimeElapsedColumn(),
+            console=console,
+        )
+        self.task = self.progress.add_task("training", total=iterations)
+        self.table = Table.grid(padding=(0, 2))
+        self.live = Live(Group(self.progress), console=console, refresh_per_second=4,
+                         transient=False)  # fmt: skip
+
+    def __enter__(self) -> CalibrationDisplay:
+        self.live.__enter__()
+        return self
+
+    def __exit__(self, *exc: Any) -> None:
+        self.live.__exit__(*exc)
+
+    def stage(self, message: str) -> None:
+        """Prints a pipeline stage line above the live area."""
+        self.console.print(f"[cyan]•[/] {message}")
+
+    def update(self, record: Any) -> None:
+        """Refreshes with one :class:`~l2calib.train.ppo.IterationRecord`."""
+        t = [100 * v for v in record.translation_m]
+        ts = [100 * v for v in record.translation_sigma_m]
+        table = Table(box=None, show_header=True, header_style="bold")
+        for col in ("", "x / roll", "y / pitch", "z / yaw"):
+            table.add_column(col, justify="right")
+        table.add_row("translation cm", *(f"{v:+.2f}" for v in t))
+        table.add_row("  σ cm", *(f"{v:.2f}" for v in ts))
+        table.add_row("rotation deg", *(f"{v:+.3f}" for v in record.rpy_deg))
+        table.add_row("  σ deg", *(f"{v:.3f}" for v in record.rotation_sigma_deg))
+        summary = (
+            f"iteration {record.iteration + 1}  evaluations {record.evaluations}  "
+            f"reward mean {record.reward_mean:.4f} best {record.reward_max:.4f}"
+        )
+        if record.time_offset_s is not None:
+            summary += f"  time offset {1000 * record.time_offset_s:+.2f} ms"
+        if record.lost or record.diverged:
+            summary += f"  lost {record.lost} diverged {record.diverged}"
+        self.progress.update(self.task, completed=record.iteration + 1)
+        self.live.update(Group(self.progress, summary, table))

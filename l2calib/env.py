@@ -1,0 +1,173 @@
+"""The calibration MDP as a TorchRL environment.
+
+Single step, batched: one step scores K candidate extrinsics (the env's batch size ``[K]``).
+The observation is a constant; the action of candidate ``k`` is
+``[qx, qy, qz, qw, tx, ty, tz(, time_offset_s)]`` (``R_imu_lidar`` as a unit quaternion,
+``t_imu_lidar`` in m); the reward is the paper's trajectory-alignment reward pooled over every
+prepared segment (joint multi-sequence calibration), and every step ends the episode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from tensordict import TensorDict, TensorDictBase
+from torchrl.data import Binary, Composite, Unbounded
+from torchrl.envs import EnvBase
+
+from l2calib import geometry as geo
+from l2calib.errors import TrainingError
+from l2calib.interfaces import CandidateStatus, OdometryBackend, ReferenceTrajectory
+from l2calib.recipe import RewardConfig
+from l2calib.reward import aligned_errors, score
+
+F64 = torch.float64
+INFO_KEYS = ("mean_e_t", "mean_e_r", "status")
+
+
+def action_to_extrinsic(action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """``T_imu_lidar [K, 4, 4]`` and ``time_offset_s [K]`` (or None) from actions ``[K, 7|8]``."""
+    T = geo.transform_from_quat(action[..., :4], action[..., 4:7])
+    return T, (action[..., 7] if action.shape[-1] == 8 else None)
+
+
+class CalibrationEnv(EnvBase):
+    """Scores K candidate extrinsics per step with an odometry backend against references.
+
+    Args:
+        backend: A prepared :class:`OdometryBackend`.
+        references: One reference per prepared segment, in the backend's segment order.
+        num_candidates: K, the batch size.
+        reward: Reward settings (kind, alignment, maximum interpolation gap).
+        time_offset: Whether actions carry a LiDAR–IMU time offset (8-dim actions).
+    """
+
+    def __init__(
+        self,
+        backend: OdometryBackend,
+        references: Sequence[ReferenceTrajectory],
+        num_candidates: int,
+        reward: RewardConfig | None = None,
+        time_offset: bool = False,
+    ) -> None:
+        super().__init__(batch_size=torch.Size([num_candidates]), device="cpu")
+        self.backend = backend
+        self.references = list(references)
+        self.reward_config = reward or RewardConfig()
+        self.action_dim = 8 if time_offset else 7
+        self.evaluations = 0
+        align = self.reward_config.align
+        if align == "auto":
+            align = "none" if backend.outputs_in_reference_frame else "se3"
+        self.align = align
+        self._ref_cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._make_spec()
+
+    def _make_spec(self) -> None:
+        K = self.batch_size[0]
+        self.observation_spec = Composite(
+            observation=Unbounded((K, 1), dtype=F64),
+            mean_e_t=Unbounded((K, 1), dtype=F64),
+            mean_e_r=Unbounded((K, 1), dtype=F64),
+            status=Unbounded((K, 1), dtype=torch.int64),
+            shape=(K,),
+        )
+        self.action_spec = Unbounded((K, self.action_dim), dtype=F64)
+        self.reward_spec = Unbounded((K, 1), dtype=F64)
+        self.done_spec = Composite(
+            done=Binary(1, (K, 1), dtype=torch.bool),
+            terminated=Binary(1, (K, 1), dtype=torch.bool),
+            truncated=Binary(1, (K, 1), dtype=torch.bool),
+            shape=(K,),
+        )
+
+    def _blank(self) -> TensorDict:
+        K = self.batch_size[0]
+        return TensorDict(
+            {
+                "observation": torch.zeros(K, 1, dtype=F64),
+                "mean_e_t": torch.zeros(K, 1, dtype=F64),
+                "mean_e_r": torch.zeros(K, 1, dtype=F64),
+                "status": torch.zeros(K, 1, dtype=torch.int64),
+            },
+            batch_size=self.batch_size,
+        )
+
+    def _reset(self, tensordict: TensorDictBase | None = None, **kwargs) -> TensorDictBase:
+        out = self._blank()
+        false = torch.zeros(self.batch_size[0], 1, dtype=torch.bool)
+        out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
+        return out
+
+    def _reference_at(self, index: int, segment: str, stamps_ns: np.ndarray):
+        if segment not in self._ref_cache:
+            ref = self.references[index].trajectory
+            sampled, ok = ref.sample(stamps_ns, self.reward_config.max_gap_s)
+            T = torch.zeros(len(stamps_ns), 4, 4, dtype=F64)
+            T[torch.from_numpy(ok)] = sampled.matrices()
+            self._ref_cache[segment] = (T, torch.from_numpy(ok))
+        return self._ref_cache[segment]
+
+    def score_candidates(
+        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
+    ):
+        """Runs the backend and pools the errors of every segment into one reward per candidate.
+
+        Returns:
+            A :class:`l2calib.reward.RewardBreakdown` and the ``[K]`` candidate status codes.
+        """
+        outputs = self.backend.evaluate(T_imu_lidar, time_offset_s)
+        if len(outputs) != len(self.references):
+            raise TrainingError(
+                f"the backend returned {len(outputs)} segments for {len(self.references)} "
+                "references",
+                fix="prepare the backend with the same segments as the environment",
+            )
+        e_t, e_r, valid, valid_r = [], [], [], []
+        status = torch.zeros(T_imu_lidar.shape[0], dtype=torch.int64)
+        for i, out in enumerate(outputs):
+            T_ref, ok = self._reference_at(i, out.segment, out.stamps_ns)
+            v = out.valid & ok[None]
+            et, er = aligned_errors(T_ref, out.T_world_lidar, v, self.align)
+            e_t.append(et)
+            e_r.append(er)
+            valid.append(v)
+            rotation = self.references[i].constrains == "pose"
+            valid_r.append(v if rotation else torch.zeros_like(v))
+            status = torch.maximum(status, out.status)
+        failed = status == int(CandidateStatus.DIVERGED)
+        breakdown = score(
+            torch.cat(e_t, 1),
+            torch.cat(e_r, 1),
+            torch.cat(valid, 1),
+            self.reward_config.kind,
+            torch.cat(valid_r, 1),
+            failed,
+        )
+        self.evaluations += int(T_imu_lidar.shape[0])
+        return breakdown, status
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict["action"].to(F64)
+        T, offset = action_to_extrinsic(action)
+        breakdown, status = self.score_candidates(T, offset)
+        out = self._blank()
+        out["mean_e_t"] = breakdown.mean_e_t[:, None]
+        out["mean_e_r"] = torch.nan_to_num(breakdown.mean_e_r, nan=-1.0)[:, None]
+        out["status"] = status[:, None]
+        true = torch.ones(self.batch_size[0], 1, dtype=torch.bool)
+        out.update(
+            {
+                "reward": breakdown.reward[:, None],
+                "done": true,
+                "terminated": true.clone(),
+                "truncated": torch.zeros_like(true),
+            }
+        )
+        return out
+
+    def _set_seed(self, seed: int | None) -> None:
+        # The environment is deterministic: all randomness lives in the policy.
+        self._seed = seed

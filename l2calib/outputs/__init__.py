@@ -1,0 +1,1 @@
+"""What a calibration leaves behind: calibration.yaml, the report, the resolved recipe."""

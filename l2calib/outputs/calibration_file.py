@@ -1,0 +1,143 @@
+"""``calibration.yaml``: the result in every form a robotics user pastes somewhere.
+
+Direction: ``T_imu_lidar`` maps points from the LiDAR frame into the IMU frame
+(``p_imu = R p_lidar + t``); it is also the pose of the LiDAR in the IMU frame. FAST-LIO's
+``extrinsic_T``/``extrinsic_R`` and a URDF joint from the IMU link (parent) to the LiDAR link
+(child) both take exactly this transform. Its inverse is written too, labelled ``T_lidar_imu``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+import yaml
+
+from l2calib import geometry as geo
+from l2calib.errors import DataError
+
+HEADER = (
+    "# l2calib calibration result.\n"
+    "# T_imu_lidar maps points from the LiDAR frame into the IMU frame (p_imu = R p_lidar + t),\n"
+    "# i.e. it is the pose of the LiDAR in the IMU frame. rpy_deg: roll, pitch, yaw with\n"
+    "# R = Rz(yaw) Ry(pitch) Rx(roll) (URDF / ROS convention). Units: m, deg, s.\n"
+)
+
+
+@dataclass
+class CalibrationResult:
+    """The calibrated extrinsic with its uncertainty and provenance."""
+
+    T_imu_lidar: np.ndarray
+    time_offset_s: float | None = None
+    rotation_sigma_deg: list[float] | None = None
+    translation_sigma_m: list[float] | None = None
+    time_offset_sigma_s: float | None = None
+    final_reward: float | None = None
+    evaluations: int = 0
+    iterations: int = 0
+    wall_time_s: float = 0.0
+    stop_reason: str = ""
+    undetermined: list[str] = field(default_factory=list)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def rpy_deg(self) -> np.ndarray:
+        """Roll, pitch, yaw (deg) of ``R_imu_lidar``."""
+        R = torch.from_numpy(np.asarray(self.T_imu_lidar)[:3, :3])
+        return torch.rad2deg(geo.matrix_to_euler_rpy(R)).numpy()
+
+    @property
+    def quat_xyzw(self) -> np.ndarray:
+        """Unit quaternion (xyzw, w >= 0) of ``R_imu_lidar``."""
+        return geo.matrix_to_quat(torch.from_numpy(np.asarray(self.T_imu_lidar)[:3, :3])).numpy()
+
+    def to_dict(self) -> dict[str, Any]:
+        """The YAML content (plain Python types)."""
+        T = np.asarray(self.T_imu_lidar, dtype=np.float64)
+        t = T[:3, 3]
+        rpy = self.rpy_deg
+        inv = geo.transform_inverse(torch.from_numpy(T)).numpy()
+
+        def r(x, n=6):
+            return [round(float(v), n) for v in np.asarray(x).reshape(-1)]
+
+        out: dict[str, Any] = {
+            "T_imu_lidar": [r(row, 9) for row in T],
+            "translation_m": r(t),
+            "quaternion_xyzw": r(self.quat_xyzw, 9),
+            "rpy_deg": r(rpy, 4),
+            "T_lidar_imu": [r(row, 9) for row in inv],
+            "time_offset_s": None if self.time_offset_s is None else round(self.time_offset_s, 6),
+            "uncertainty": {
+                "rotation_sigma_deg": r(self.rotation_sigma_deg or [], 4) or None,
+                "translation_sigma_m": r(self.translation_sigma_m or [], 5) or None,
+                "time_offset_sigma_s": self.time_offset_sigma_s,
+                "undetermined": list(self.undetermined),
+            },
+            "training": {
+                "final_reward": None if self.final_reward is None else round(self.final_reward, 6),
+                "evaluations": int(self.evaluations),
+                "iterations": int(self.iterations),
+                "wall_time_s": round(float(self.wall_time_s), 1),
+                "stop_reason": self.stop_reason,
+            },
+            "fast_lio": {  # FAST-LIO: extrinsic_T = LiDAR position in IMU frame, R row-major
+                "extrinsic_T": r(t),
+                "extrinsic_R": r(T[:3, :3], 9),
+            },
+            "urdf": (
+                f'<origin xyz="{t[0]:.6f} {t[1]:.6f} {t[2]:.6f}" '
+                f'rpy="{np.radians(rpy[0]):.6f} {np.radians(rpy[1]):.6f} '
+                f'{np.radians(rpy[2]):.6f}"/>  <!-- parent: imu, child: lidar -->'
+            ),
+        }
+        out.update(self.extra)
+        return out
+
+
+def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
+    """Writes ``calibration.yaml`` (never over a file the user made: see ``l2calib.outputs``)."""
+    path = Path(path)
+    text = HEADER + yaml.safe_dump(result.to_dict(), sort_keys=False, width=100)
+    path.write_text(text)
+    return path
+
+
+def read_extrinsic(path: str | Path) -> tuple[np.ndarray, float | None]:
+    """``T_imu_lidar`` (and time offset) from a calibration.yaml or an ``extrinsic_gt.yaml``.
+
+    Accepts a 4×4 ``T_imu_lidar``, or ``translation_m`` with ``quaternion_xyzw`` or ``rpy_deg``.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"{path}: no such file", fix="give the calibration.yaml to evaluate")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise DataError(f"{path}: not valid YAML ({exc})") from None
+    offset = data.get("time_offset_s")
+    if "T_imu_lidar" in data:
+        T = np.asarray(data["T_imu_lidar"], dtype=np.float64)
+        if T.shape != (4, 4):
+            raise DataError(f"{path}: T_imu_lidar has shape {T.shape}, expected 4x4")
+    elif "translation_m" in data and ("quaternion_xyzw" in data or "rpy_deg" in data):
+        t = torch.tensor(data["translation_m"], dtype=torch.float64)
+        if "quaternion_xyzw" in data:
+            R = geo.quat_to_matrix(torch.tensor(data["quaternion_xyzw"], dtype=torch.float64))
+        else:
+            rpy = torch.deg2rad(torch.tensor(data["rpy_deg"], dtype=torch.float64))
+            R = geo.euler_rpy_to_matrix(rpy)
+        T = geo.make_transform(R, t).numpy()
+    else:
+        raise DataError(
+            f"{path}: no extrinsic found",
+            fix="give T_imu_lidar (4x4), or translation_m with quaternion_xyzw or rpy_deg",
+        )
+    R = T[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
+        raise DataError(f"{path}: the rotation of T_imu_lidar is not a proper rotation")
+    return T, (float(offset) if offset is not None else None)

@@ -1,0 +1,115 @@
+"""Writing a calibration run's directory without ever destroying what a user made."""
+
+from __future__ import annotations
+
+import csv
+import json
+import shutil
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from l2calib.errors import ConfigError
+from l2calib.outputs.calibration_file import CalibrationResult, write_calibration
+from l2calib.outputs.report import plot_report, write_html
+from l2calib.recipe import Recipe, dump_recipe
+
+OWN_FILES = ("calibration.yaml", "checkpoint.pt", "recipe.yaml", "report.png", "report.html")
+
+
+def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
+    """Creates ``out``; refuses to reuse a non-empty one unless resuming or forced.
+
+    With ``force``, an existing directory is moved aside to ``<out>.previous-<time>`` (never
+    deleted).
+    """
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out} exists and is not a directory", fix="choose another --out")
+    if resume:
+        if not (out / "checkpoint.pt").is_file():
+            raise ConfigError(
+                f"{out}: nothing to resume (no checkpoint.pt)",
+                fix="run without --resume, or point --out at the killed run's directory",
+            )
+        return out
+    if out.exists() and any(out.iterdir()):
+        if not force:
+            raise ConfigError(
+                f"{out} is not empty",
+                fix="choose a new --out, add --resume to continue a killed run, or --force to "
+                "move the old directory aside",
+            )
+        backup = out.with_name(f"{out.name}.previous-{time.strftime('%Y%m%d-%H%M%S')}")
+        shutil.move(str(out), str(backup))
+    out.mkdir(parents=True, exist_ok=True)
+    return out
+
+
+def write_metrics_csv(path: Path, history: list[Any]) -> Path:
+    """All per-iteration scalars in one CSV (the TorchRL logger also keeps one file per key)."""
+    rows = [h.scalars() for h in history]
+    keys = sorted({k for r in rows for k in r})
+    with path.open("w", newline="") as fh:
+        writer = csv.DictWriter(fh, fieldnames=keys)
+        writer.writeheader()
+        writer.writerows(rows)
+    return path
+
+
+def trajectory_preview(recipe: Recipe, data, T_before: np.ndarray, T_after: np.ndarray):
+    """LiDAR positions of the first segment with two extrinsics, beside the reference."""
+    from l2calib.train.envs import build_backend
+
+    seg, ref = data.segments[:1], data.references[:1]
+    backend = build_backend(recipe, seg, ref)
+    T = torch.from_numpy(np.stack([T_before, T_after]))
+    out = backend.evaluate(T)[0]
+    backend.close()
+    sampled, ok = ref[0].trajectory.sample(out.stamps_ns, recipe.reward.max_gap_s)
+    pos = out.T_world_lidar[:, :, :3, 3].numpy()
+    return {
+        "reference": sampled.t_world_body,
+        "before": pos[0][ok],
+        "after": pos[1][ok],
+    }
+
+
+def write_outputs(
+    out: Path,
+    recipe: Recipe,
+    result: CalibrationResult,
+    history: list[Any],
+    data,
+    truth: np.ndarray | None = None,
+    before: np.ndarray | None = None,
+) -> dict[str, Path]:
+    """Writes calibration.yaml, recipe.yaml, metrics.csv, report.png/html, selection files."""
+    out = Path(out)
+    paths = {
+        "calibration": write_calibration(out / "calibration.yaml", result),
+        "metrics": write_metrics_csv(out / "metrics.csv", history),
+    }
+    (out / "recipe.yaml").write_text(dump_recipe(recipe))
+    paths["recipe"] = out / "recipe.yaml"
+    images = []
+    trajectories = None
+    if before is None:
+        before = np.eye(4)
+    try:
+        trajectories = trajectory_preview(recipe, data, before, result.T_imu_lidar)
+    except Exception as exc:  # the report must not lose the calibration
+        (out / "report-warnings.txt").write_text(f"trajectory preview failed: {exc}\n")
+    paths["report"] = plot_report(out / "report.png", history, result, trajectories, truth)
+    images.append("report.png")
+    if data.selection is not None:
+        from l2calib.selection.plot import plot_selection
+
+        paths["selection_plot"] = plot_selection(data.selection, out / "selection.png")
+        (out / "selection.json").write_text(json.dumps(data.selection.as_dict(), indent=1))
+        images.append("selection.png")
+    paths["html"] = write_html(out / "report.html", result, images)
+    return paths

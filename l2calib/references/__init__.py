@@ -1,0 +1,1 @@
+"""Reference trajectories for calibration: LiDAR-only odometry runners and loaders."""

@@ -1,0 +1,83 @@
+"""Building the calibration environment, in this process or spread over worker processes.
+
+With ``workers > 1`` the K candidates of an iteration are split over a TorchRL ``ParallelEnv``;
+each worker holds its own prepared backend. The policy still samples all K actions in the main
+process, so a fixed seed gives the same candidates — and the same result — whatever the number
+of workers.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+import torch
+
+from l2calib.data import Segment
+from l2calib.errors import ConfigError
+from l2calib.interfaces import ReferenceTrajectory
+from l2calib.recipe import Recipe
+
+
+def build_backend(recipe: Recipe, segments: Sequence[Segment], references, threads: int = 0):
+    """The recipe's backend plugin, prepared on ``segments`` with their ``references``."""
+    from l2calib.plugins import get_plugin
+
+    if threads:
+        torch.set_num_threads(threads)
+    backend = get_plugin("l2calib.backends", recipe.backend.name).build(
+        recipe.backend.options, imu=recipe.data.imu
+    )
+    backend.prepare(list(segments), list(references))
+    return backend
+
+
+def make_env(
+    recipe_data: dict[str, Any],
+    segments: Sequence[Segment],
+    references: Sequence[ReferenceTrajectory],
+    num_candidates: int,
+    threads: int = 0,
+):
+    """A :class:`~l2calib.env.CalibrationEnv` (top-level so worker processes can build it)."""
+    from l2calib.env import CalibrationEnv
+
+    recipe = Recipe.model_validate(recipe_data)
+    backend = build_backend(recipe, segments, references, threads)
+    return CalibrationEnv(
+        backend,
+        references,
+        num_candidates,
+        recipe.reward,
+        time_offset=recipe.train.estimate_time_offset,
+    )
+
+
+def make_training_env(
+    recipe: Recipe,
+    segments: Sequence[Segment],
+    references: Sequence[ReferenceTrajectory],
+):
+    """One environment scoring ``train.candidates_per_iteration`` candidates per step."""
+    K, workers = recipe.train.candidates_per_iteration, recipe.train.workers
+    data = recipe.model_dump(mode="json")
+    if workers == 1:
+        return make_env(data, segments, references, K)
+    if K % workers:
+        raise ConfigError(
+            f"train.candidates_per_iteration={K} is not divisible by train.workers={workers}",
+            fix="choose a multiple of the number of workers",
+        )
+    from torchrl.envs import EnvCreator, ParallelEnv
+
+    creator = EnvCreator(
+        make_env,
+        create_env_kwargs={
+            "recipe_data": data,
+            "segments": list(segments),
+            "references": list(references),
+            "num_candidates": K // workers,
+            "threads": 1,
+        },
+    )
+    return ParallelEnv(workers, creator, num_threads=1, mp_start_method="fork")

@@ -1,0 +1,285 @@
+"""PPO on the single-step calibration MDP with TorchRL (collector, ClipPPOLoss, logger).
+
+One iteration: the collector samples K candidate extrinsics from the policy and the environment
+scores them; the value module is the baseline of the one-step episode (advantage ``r - V``,
+target ``r``); a few full-batch epochs of ``ClipPPOLoss`` (clipped surrogate + value loss +
+entropy bonus) with Adam and gradient clipping follow. The learning rate of the rotation and
+translation means follows their current spread; an optional cosine schedule scales all rates.
+Training stops on convergence (the policy's mode and spread have settled) or on the budget.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from l2calib import geometry as geo
+from l2calib.recipe import TrainConfig
+from l2calib.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
+
+
+@dataclass
+class IterationRecord:
+    """What one iteration produced (one row of the metrics)."""
+
+    iteration: int
+    evaluations: int
+    wall_s: float
+    reward_mean: float
+    reward_max: float
+    mean_e_t_m: float
+    mean_e_r_deg: float
+    lost: int
+    diverged: int
+    translation_m: list[float]
+    rpy_deg: list[float]
+    time_offset_s: float | None
+    rotation_sigma_deg: list[float]
+    translation_sigma_m: list[float]
+    loss_objective: float
+    loss_critic: float
+    loss_entropy: float
+    lr: float
+
+    def scalars(self) -> dict[str, float]:
+        """Flat scalars for the logger."""
+        out = {k: v for k, v in self.__dict__.items() if isinstance(v, (int, float))}
+        for name in ("translation_m", "rpy_deg", "rotation_sigma_deg", "translation_sigma_m"):
+            for axis, value in zip("xyz", getattr(self, name), strict=True):
+                out[f"{name}_{axis}"] = float(value)
+        if self.time_offset_s is not None:
+            out["time_offset_s"] = float(self.time_offset_s)
+        return out
+
+
+@dataclass
+class TrainOutcome:
+    """The end of a training run."""
+
+    history: list[IterationRecord] = field(default_factory=list)
+    stop_reason: str = ""
+    evaluations: int = 0
+    wall_s: float = 0.0
+
+
+def _mode_summary(policy) -> tuple[list[float], list[float], float | None]:
+    mode = policy.mode()
+    T = torch.as_tensor(mode["T_imu_lidar"], dtype=torch.float64)
+    rpy = torch.rad2deg(geo.matrix_to_euler_rpy(T[:3, :3])).tolist()
+    off = mode.get("time_offset_s")
+    return T[:3, 3].tolist(), rpy, (float(off) if off is not None else None)
+
+
+def _converged(history: list[IterationRecord], cfg: TrainConfig) -> bool:
+    window = cfg.convergence_window
+    if len(history) < window:
+        return False
+    recent = history[-window:]
+    last = recent[-1]
+    if max(last.rotation_sigma_deg) > cfg.converged_rotation_sigma_deg:
+        return False
+    if max(last.translation_sigma_m) > cfg.converged_translation_sigma_m:
+        return False
+    t = torch.tensor([r.translation_m for r in recent])
+    rpy = torch.tensor([r.rpy_deg for r in recent])
+    drift_t = float((t - t[-1]).norm(dim=-1).max())
+    R = geo.euler_rpy_to_matrix(torch.deg2rad(rpy))
+    drift_r = float(torch.rad2deg(geo.rotation_angle(R[-1].T @ R)).max())
+    return drift_t < cfg.converged_step_m and drift_r < cfg.converged_step_deg
+
+
+class PpoTrainer:
+    """Trains a policy plugin's actor/value on a calibration environment.
+
+    Args:
+        policy: A policy plugin object (``.actor``, ``.value``, ``.mode()``, ``.uncertainty()``).
+        env: The environment (``CalibrationEnv`` or a ``ParallelEnv`` of them).
+        cfg: PPO settings and budgets.
+        out_dir: Where checkpoints and metrics go (``None``: nowhere).
+        fingerprint: Identity of recipe + data, checked on resume.
+    """
+
+    def __init__(self, policy, env, cfg: TrainConfig, out_dir: Path | None, fingerprint: str):
+        from torchrl.collectors import Collector
+        from torchrl.envs.utils import ExplorationType
+        from torchrl.objectives import ClipPPOLoss
+
+        self.policy, self.env, self.cfg = policy, env, cfg
+        self.out_dir = out_dir
+        self.fingerprint = fingerprint
+        self.K = cfg.candidates_per_iteration
+        self.iterations = max(1, min(cfg.max_iterations, cfg.max_evaluations // self.K))
+        self.loss = ClipPPOLoss(
+            policy.actor,
+            policy.value,
+            clip_epsilon=cfg.clip_epsilon,
+            entropy_coeff=cfg.entropy_coef,
+            normalize_advantage=True,
+        )
+        self.optim = torch.optim.Adam(self._param_groups(), lr=cfg.lr)
+        self.collector = Collector(
+            env,
+            policy.actor,
+            frames_per_batch=self.K,
+            total_frames=-1,
+            exploration_type=ExplorationType.RANDOM,
+            auto_register_policy_transforms=False,  # the policy needs no env transform
+        )
+        self.outcome = TrainOutcome()
+        self._logger = None
+        if out_dir is not None:
+            from torchrl.record.loggers.csv import CSVLogger
+
+            self._logger = CSVLogger("metrics", log_dir=str(out_dir))
+
+    def _param_groups(self) -> list[dict[str, Any]]:
+        groups = getattr(self.policy, "param_groups", None)
+        if groups is None:
+            return [{"params": list(self.loss.parameters()), "role": "other"}]
+        return [{"params": params, "role": role} for role, params in groups().items()]
+
+    def _set_learning_rates(self, iteration: int) -> None:
+        """Learning rates of this iteration (the schedule is applied by hand, per group).
+
+        The means' step sizes follow their current spread (natural-gradient-like): Adam moves
+        every parameter by about ``lr`` per step whatever its gradient, so a fixed rate in metres
+        would make the translation mean wander by that much on noisy gradients long after the
+        spread has shrunk below it (and crawl while the spread is wide).
+        """
+        factor = 1.0
+        if self.cfg.lr_schedule == "cosine":
+            progress = iteration / max(self.iterations - 1, 1)
+            factor = 0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi * progress))
+        for group in self.optim.param_groups:
+            group["lr"] = self.cfg.lr * factor
+        if self.cfg.mean_step_scale <= 0:
+            return
+        unc = self.policy.uncertainty()
+        sigma = {
+            "rotation_mean": min(float(torch.as_tensor(unc["rotation_sigma_rad"]).mean()), 1.0),
+            "translation_mean": float(torch.as_tensor(unc["translation_sigma_m"]).mean()),
+        }
+        for group in self.optim.param_groups:
+            if group["role"] in sigma:
+                group["lr"] = self.cfg.mean_step_scale * sigma[group["role"]] * factor
+
+    # ------------------------------------------------------------------ checkpoints
+    def _generators(self) -> list[torch.Generator]:
+        """Sampling generators owned by the policy's modules (TorchRL actors keep their own)."""
+        gens = []
+        for module in self.policy.modules():
+            gen = getattr(module, "_generator", None)
+            if isinstance(gen, torch.Generator):
+                gens.append(gen)
+        return gens
+
+    def _state(self) -> dict[str, Any]:
+        return {
+            "fingerprint": self.fingerprint,
+            "policy": self.policy.state_dict(),
+            "optim": self.optim.state_dict(),
+            "rng": torch.get_rng_state(),
+            "generators": [g.get_state() for g in self._generators()],
+            "outcome": self.outcome,
+        }
+
+    def resume(self) -> None:
+        """Restores the last checkpoint in ``out_dir`` (exact continuation)."""
+        state = load_checkpoint(self.out_dir / CHECKPOINT_NAME, self.fingerprint)
+        self.policy.load_state_dict(state["policy"])
+        self.optim.load_state_dict(state["optim"])
+        torch.set_rng_state(state["rng"])
+        for gen, gen_state in zip(self._generators(), state["generators"], strict=True):
+            gen.set_state(gen_state)
+        self.outcome = state["outcome"]
+
+    def checkpoint(self) -> None:
+        """Writes the checkpoint now."""
+        if self.out_dir is not None:
+            save_checkpoint(self.out_dir / CHECKPOINT_NAME, self._state())
+
+    # ------------------------------------------------------------------ loop
+    def _update(self, batch, iteration: int) -> dict[str, float]:
+        self._set_learning_rates(iteration)
+        with torch.no_grad():
+            value = self.policy.value(batch.clone())["state_value"]
+        reward = batch["next", "reward"]
+        batch["value_target"] = reward  # one-step episodes: the return is the reward
+        batch["advantage"] = reward - value
+        totals: dict[str, float] = {}
+        for _ in range(self.cfg.ppo_epochs):
+            losses = self.loss(batch)
+            total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
+            self.optim.zero_grad()
+            total.backward()
+            torch.nn.utils.clip_grad_norm_(self.loss.parameters(), self.cfg.max_grad_norm)
+            self.optim.step()
+            for key in ("loss_objective", "loss_critic", "loss_entropy"):
+                totals[key] = float(losses[key].detach())
+        return totals
+
+    def run(self, progress: Callable[[IterationRecord], None] | None = None) -> TrainOutcome:
+        """Trains until convergence or budget; returns the history and why it stopped."""
+        t_start = time.monotonic() - self.outcome.wall_s
+        it = len(self.outcome.history)
+        collector_iter = iter(self.collector)
+        while True:
+            if it >= self.iterations:
+                self.outcome.stop_reason = (
+                    f"budget: {it} iterations, {self.outcome.evaluations} evaluations"
+                )
+                break
+            if _converged(self.outcome.history, self.cfg):
+                self.outcome.stop_reason = f"converged after {it} iterations"
+                break
+            batch = next(collector_iter).reshape(-1)
+            losses = self._update(batch, it)
+            self.collector.update_policy_weights_()
+            self.outcome.evaluations += int(batch.numel())
+            record = self._record(it, batch, losses, time.monotonic() - t_start)
+            self.outcome.history.append(record)
+            self.outcome.wall_s = record.wall_s
+            if self._logger is not None:
+                for key, value in record.scalars().items():
+                    self._logger.log_scalar(key, value, step=it)
+            it += 1
+            if self.out_dir is not None and it % self.cfg.checkpoint_every == 0:
+                self.checkpoint()
+            if progress is not None:
+                progress(record)
+        self.checkpoint()
+        self.collector.shutdown()
+        return self.outcome
+
+    def _record(self, it: int, batch, losses: dict[str, float], wall_s: float) -> IterationRecord:
+        reward = batch["next", "reward"].reshape(-1)
+        status = batch["next", "status"].reshape(-1)
+        e_t = batch["next", "mean_e_t"].reshape(-1)
+        e_r = batch["next", "mean_e_r"].reshape(-1)
+        best = int(reward.argmax())
+        t, rpy, off = _mode_summary(self.policy)
+        unc = self.policy.uncertainty()
+        return IterationRecord(
+            iteration=it,
+            evaluations=self.outcome.evaluations,
+            wall_s=wall_s,
+            reward_mean=float(reward.mean()),
+            reward_max=float(reward.max()),
+            mean_e_t_m=float(e_t[best]),
+            mean_e_r_deg=math.degrees(float(e_r[best])) if float(e_r[best]) >= 0 else -1.0,
+            lost=int((status == 2).sum()),
+            diverged=int((status == 1).sum()),
+            translation_m=t,
+            rpy_deg=rpy,
+            time_offset_s=off,
+            rotation_sigma_deg=[float(x) for x in unc["rotation_sigma_deg"]],
+            translation_sigma_m=[float(x) for x in unc["translation_sigma_m"]],
+            lr=float(self.optim.param_groups[-1]["lr"]),
+            **losses,
+        )

@@ -1,0 +1,73 @@
+from __future__ import annotations
+
+import pytest
+import torch
+from fakes import reference, tiny_sequence
+
+from l2calib.errors import ConfigError, TrainingError
+from l2calib.pipeline import PreparedData, train_policy
+from l2calib.recipe import Recipe
+
+
+def _data():
+    seqs = [tiny_sequence("s")]
+    return PreparedData(seqs, [seqs[0].segment()], [reference("s:0.0-4.9")])
+
+
+def _recipe(**train):
+    base = {"candidates_per_iteration": 8, "max_iterations": 3, "seed": 5}
+    return Recipe.model_validate(
+        {
+            "backend": {"name": "fake-lio"},
+            "train": {**base, **train},
+        }
+    )
+
+
+def _run(recipe, out=None, resume=False, progress=None):
+    data = _data()
+    ref = data.references[0]
+    data.references = [type(ref)(data.segments[0].name, ref.trajectory)]
+    return train_policy(recipe, data, out, resume=resume, progress=progress)
+
+
+def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
+    result, outcome = _run(_recipe(), tmp_path)
+    assert len(outcome.history) == 3
+    assert result.evaluations == 3 * 8 + 1
+    assert (tmp_path / "checkpoint.pt").is_file()
+    assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
+
+
+def test_worker_count_does_not_change_the_result(fake_backend_env):
+    r1, _ = _run(_recipe(workers=1))
+    r2, _ = _run(_recipe(workers=2))
+    assert torch.allclose(torch.as_tensor(r1.T_imu_lidar), torch.as_tensor(r2.T_imu_lidar))
+
+
+def test_resume_continues_to_the_same_result(fake_backend_env, tmp_path):
+    recipe = _recipe(max_iterations=5, checkpoint_every=2)
+    full, _ = _run(recipe)
+
+    def kill_after_third(record):
+        if record.iteration == 2:  # iterations 0-1 are checkpointed, iteration 2 is lost
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        _run(recipe, tmp_path, progress=kill_after_third)
+    state = torch.load(tmp_path / "checkpoint.pt", weights_only=False)
+    assert len(state["outcome"].history) == 2
+    resumed, outcome = _run(recipe, tmp_path, resume=True)
+    assert len(outcome.history) == 5
+    assert torch.equal(torch.as_tensor(full.T_imu_lidar), torch.as_tensor(resumed.T_imu_lidar))
+
+
+def test_resume_refuses_another_recipe(fake_backend_env, tmp_path):
+    _run(_recipe(max_iterations=1), tmp_path)
+    with pytest.raises(TrainingError, match="another recipe or other input data"):
+        _run(_recipe(max_iterations=2, lr=0.1), tmp_path, resume=True)
+
+
+def test_workers_must_divide_the_batch(fake_backend_env):
+    with pytest.raises(ConfigError, match="not divisible by train.workers=3"):
+        _run(_recipe(workers=3))
