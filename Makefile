@@ -10,8 +10,7 @@ $(VENV)/.installed: pyproject.toml backends/pyproject.toml policies/pyproject.to
 	VENV=$(VENV) scripts/install.sh
 
 demo: install
-	$(BIN)/l2calib --version
-	$(BIN)/l2calib plugins
+	$(BIN)/l2calib demo --force
 
 test: install
 	$(BIN)/python -m pytest -q

@@ -43,6 +43,7 @@ CASES = [
     ("handheld x0.5", "handheld", "hall", "ouster-os1-64", 10.0, 1024, 15.0, "ntu-viral"),
     ("uav", "uav", "urban", "ouster-os1-16", 10.0, 1024, 40.0, "ntu-viral"),
     ("uav hall", "uav", "hall", "ouster-os1-16", 10.0, 1024, 40.0, "ntu-viral"),
+    ("uav 64-beam", "uav", "urban", "ouster-os1-64", 10.0, 1024, 40.0, "ntu-viral"),
     ("ugv", "ugv", "urban", "ouster-os1-64", 10.0, 1024, 40.0, "mcd"),
     ("ugv hall", "ugv", "hall", "ouster-os1-64", 10.0, 1024, 40.0, "mcd"),
 ]

@@ -138,10 +138,10 @@ class TrainConfig(StrictModel):
     workers: int = Field(1, ge=1, description="processes that run the odometry")
     checkpoint_every: int = Field(10, ge=1)
     convergence_window: int = Field(15, ge=2, description="iterations the mode must stay put")
-    converged_step_deg: float = Field(0.05, gt=0, description="largest mode move in the window")
-    converged_step_m: float = Field(0.002, gt=0, description="largest mode move in the window")
+    converged_step_deg: float = Field(0.1, gt=0, description="largest mode move in the window")
+    converged_step_m: float = Field(0.005, gt=0, description="largest mode move in the window")
     converged_rotation_sigma_deg: float = Field(0.5, gt=0, description="largest rotation sigma")
-    converged_translation_sigma_m: float = Field(0.03, gt=0, description="largest trans. sigma")
+    converged_translation_sigma_m: float = Field(0.05, gt=0, description="largest trans. sigma")
 
 
 def _reference() -> PluginChoice:

@@ -22,7 +22,7 @@ from l2calib.interfaces import CandidateStatus
 from l2calib_backends.gtsam_graph import GraphSettings, ScanGraph, imu_intervals, imu_params
 from l2calib_backends.iekf import RunResult, deskew, lidar_poses
 from l2calib_backends.initialise import ReferenceMotion, initial_states
-from l2calib_backends.plane_map import VoxelPlaneMap
+from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
 from l2calib_backends.prepare import PreparedSegment, ScanTensors
 from l2calib_backends.propagation import ImuNoise, propagate
 from l2calib_backends.registration import RegistrationSettings, register_scans
@@ -77,7 +77,7 @@ def run_segment_gtsam(
     T_imu_lidar: Tensor,
     time_offset_s: Tensor,
     settings: GtsamRunSettings,
-    shared_map: VoxelPlaneMap | None,
+    shared_map: VoxelPlaneMap | FrozenPlaneMap | None,
     seeds: ScanTensors | None = None,
 ) -> RunResult:
     """Runs K candidates over ``seg`` as K×W graphs, one per candidate and window.

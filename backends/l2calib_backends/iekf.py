@@ -9,7 +9,7 @@ from torch import Tensor
 
 from l2calib.interfaces import CandidateStatus
 from l2calib_backends.initialise import ReferenceMotion, initial_states
-from l2calib_backends.plane_map import VoxelPlaneMap
+from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
 from l2calib_backends.prepare import PreparedSegment, ScanTensors
 from l2calib_backends.propagation import ImuNoise, PoseTrack, propagate
 from l2calib_backends.update import UpdateSettings, iterated_update
@@ -91,7 +91,7 @@ def run_segment(
     T_imu_lidar: Tensor,
     time_offset_s: Tensor,
     settings: RunSettings,
-    shared_map: VoxelPlaneMap | None,
+    shared_map: VoxelPlaneMap | FrozenPlaneMap | None,
     seeds: ScanTensors | None = None,
 ) -> RunResult:
     """Runs K candidates over ``seg`` as K×W filters, one per candidate and window.

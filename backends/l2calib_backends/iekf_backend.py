@@ -14,7 +14,7 @@ from l2calib.recipe import ImuInput
 from l2calib.trajectory import Trajectory
 from l2calib_backends.iekf import RunSettings, run_segment, window_starts
 from l2calib_backends.initialise import ReferenceMotion, reference_motion
-from l2calib_backends.plane_map import VoxelPlaneMap
+from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
 from l2calib_backends.prepare import PreparedSegment, ScanTensors, prepare_segment
 from l2calib_backends.propagation import ImuNoise
 from l2calib_backends.specs import IekfOptions
@@ -56,8 +56,11 @@ def build_reference_map(
     thickness_m: float,
     min_range_m: float,
     max_range_m: float,
-) -> VoxelPlaneMap:
-    """One plane map from every scan of every segment, placed by the reference trajectory."""
+) -> FrozenPlaneMap:
+    """One plane map from every scan of every segment, placed by the reference trajectory.
+
+    Returned frozen (read-only, binary-search lookups): it never changes afterwards.
+    """
     plane_map = VoxelPlaneMap(voxel_m, max_thickness_m=thickness_m)
     for seg, ref in zip(segments, references, strict=True):
         for scan in seg.scans:
@@ -65,7 +68,7 @@ def build_reference_map(
                 scan, ref.trajectory, voxel_m / 4, min_range_m, max_range_m
             )
             plane_map.insert(world, torch.zeros(len(world), dtype=torch.int64))
-    return plane_map
+    return FrozenPlaneMap(plane_map)
 
 
 def _seed_points(

@@ -166,3 +166,73 @@ class VoxelPlaneMap:
         active = from_dlpack(self._hash.active_buf_indices().to_dlpack()).to(torch.int64)
         groups = keys[active, 0].to(torch.int64).numpy()
         return np.bincount(groups, minlength=num_groups)
+
+
+_AXIS_BITS = 21  # ±1M voxels per axis: ±500 km at 0.5 m
+_AXIS_OFF = 1 << (_AXIS_BITS - 1)
+
+
+def _pack(ijk: Tensor) -> Tensor:
+    """int64 key of integer voxel coordinates ``[..., 3]``; out-of-range coordinates clamp."""
+    u = (ijk.to(torch.int64) + _AXIS_OFF).clamp(0, (1 << _AXIS_BITS) - 1)
+    return (u[..., 0] << (2 * _AXIS_BITS)) | (u[..., 1] << _AXIS_BITS) | u[..., 2]
+
+
+class FrozenPlaneMap:
+    """A read-only plane map (one group) answered by binary search over sorted voxel keys.
+
+    The shared map never changes after it is built, so instead of probing a hash table (slow
+    when most queries miss, as they do for far-off candidates) every occupied voxel with a plane
+    is kept in a sorted int64 key array and looked up with ``torch.searchsorted``.
+    """
+
+    def __init__(self, source: VoxelPlaneMap, group: int = 0) -> None:
+        self.voxel_size_m = source.voxel_size_m
+        keys = from_dlpack(source._hash.key_tensor().to_dlpack())
+        active = from_dlpack(source._hash.active_buf_indices().to_dlpack()).to(torch.int64)
+        values = source._values()[active]
+        keys = keys[active]
+        keep = (keys[:, 0] == group) & (values[:, _OK] > 0.5)
+        packed = _pack(keys[keep, 1:])
+        order = torch.argsort(packed)
+        self._keys = packed[order].contiguous()
+        self._planes = values[keep][order][:, _NRM.start : _D + 1].contiguous()  # n (3), d
+
+    def __len__(self) -> int:
+        return int(self._keys.shape[0])
+
+    def _lookup(self, ijk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        key = _pack(ijk)
+        if len(self) == 0:
+            z = torch.zeros(*key.shape, 3, dtype=torch.float64)
+            return z, z[..., 0], torch.zeros(key.shape, dtype=torch.bool)
+        idx = torch.searchsorted(self._keys, key).clamp(max=len(self) - 1)
+        ok = self._keys[idx] == key
+        plane = self._planes[idx] * ok[..., None]
+        return plane[..., :3], plane[..., 3], ok
+
+    def query(
+        self, points: Tensor, groups: Tensor | None = None, neighbours: bool = False
+    ) -> tuple[Tensor, Tensor, Tensor]:
+        """Same contract as :meth:`VoxelPlaneMap.query` (``groups`` is ignored)."""
+        ijk = torch.floor(points / self.voxel_size_m).to(torch.int64)
+        normal, d, ok = self._lookup(ijk)
+        if neighbours and not bool(ok.all()):
+            miss = ~ok
+            p_miss, ijk_miss = points[miss], ijk[miss]
+            best = torch.full(p_miss.shape[:-1], float("inf"), dtype=points.dtype)
+            n_m, d_m, ok_m = normal[miss], d[miss], ok[miss]
+            for axis in range(3):
+                for step in (-1, 1):
+                    shifted = ijk_miss.clone()
+                    shifted[:, axis] += step
+                    n_k, d_k, ok_k = self._lookup(shifted)
+                    res = ((n_k * p_miss).sum(-1) + d_k).abs()
+                    better = ok_k & (res < best)
+                    best = torch.where(better, res, best)
+                    n_m = torch.where(better[:, None], n_k, n_m)
+                    d_m = torch.where(better, d_k, d_m)
+                    ok_m = ok_m | better
+            normal, d, ok = normal.clone(), d.clone(), ok.clone()
+            normal[miss], d[miss], ok[miss] = n_m, d_m, ok_m
+        return normal, d, ok

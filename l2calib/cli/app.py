@@ -41,6 +41,7 @@ def _root(
 from l2calib.cli import (  # noqa: E402
     cmd_calibrate,
     cmd_demo,
+    cmd_evaluate,
     cmd_inspect,
     cmd_plugins,
     cmd_recipe,
@@ -51,6 +52,7 @@ from l2calib.cli import (  # noqa: E402
 for _module in (
     cmd_demo,
     cmd_calibrate,
+    cmd_evaluate,
     cmd_simulate,
     cmd_inspect,
     cmd_select,

@@ -7,6 +7,14 @@ sensor frame at the scan's *latest* point; the registered pose is therefore the 
 ``scan.end_stamp_ns``. Without deskewing the scan is treated as rigid and the pose best matches the
 middle of the sweep, so we stamp it there. KISS-ICP's first pose is the identity: the trajectory's
 world frame is the LiDAR frame at the first scan (``world_frame="kiss_icp_map"``).
+
+Iterated deskewing (``deskew_iterations > 1``): KISS-ICP deskews a scan with the *previous* scan's
+motion (constant velocity) before registering it. Under fast, changing rotation (a hand-swung rig
+at 2-4 rad/s) that prediction is poor and the distorted scan corrupts the map. With iterations, the
+scan is deskewed again with the motion just estimated for it (``last_pose⁻¹ · new_pose``) and
+re-registered from the new pose; the map and the adaptive threshold are updated once, with the
+final result, exactly as ``KissICP.register_frame`` does. It reuses KISS-ICP's own preprocessor,
+registration, voxel map and threshold objects (kiss-icp 1.3 Python API).
 """
 
 from __future__ import annotations
@@ -14,63 +22,13 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-from pydantic import Field
 
 from l2calib.data import LidarScan
-from l2calib.errors import DataError, ReferenceSourceError
-from l2calib.recipe import StrictModel
+from l2calib.errors import DataError
+from l2calib.references.options import KissIcpOptions
 from l2calib.trajectory import Trajectory
 
-
-class KissIcpOptions(StrictModel):
-    """KISS-ICP settings (a flat view of its ``KISSConfig``)."""
-
-    voxel_size: float | None = Field(None, gt=0, description="m; default: max_range_m / 100")
-    max_range_m: float = Field(100.0, gt=0)
-    min_range_m: float = Field(0.5, ge=0)
-    deskew: bool = Field(True, description="motion-compensate with per-point times")
-    max_points_per_voxel: int = Field(20, ge=1)
-    initial_threshold: float = Field(2.0, gt=0, description="initial correspondence threshold (m)")
-    min_motion_th: float = Field(0.1, ge=0)
-    fixed_threshold: float | None = Field(None, gt=0)
-    max_num_iterations: int = Field(500, ge=1)
-    convergence_criterion: float = Field(1e-4, gt=0)
-    max_num_threads: int = Field(0, ge=0, description="0: all cores")
-
-    def kiss_config(self):  # noqa: ANN201 - kiss_icp.config.KISSConfig, imported lazily
-        """The equivalent ``kiss_icp.config.KISSConfig``."""
-        from kiss_icp.config import KISSConfig
-        from kiss_icp.config.config import (
-            AdaptiveThresholdConfig,
-            DataConfig,
-            MappingConfig,
-            RegistrationConfig,
-        )
-
-        if self.min_range_m >= self.max_range_m:
-            raise ReferenceSourceError(
-                f"kiss-icp: min_range_m ({self.min_range_m}) >= max_range_m ({self.max_range_m})",
-                fix="make min_range_m smaller than max_range_m",
-            )
-        return KISSConfig(
-            data=DataConfig(
-                max_range=self.max_range_m, min_range=self.min_range_m, deskew=self.deskew
-            ),
-            mapping=MappingConfig(
-                voxel_size=self.voxel_size or self.max_range_m / 100.0,
-                max_points_per_voxel=self.max_points_per_voxel,
-            ),
-            registration=RegistrationConfig(
-                max_num_iterations=self.max_num_iterations,
-                convergence_criterion=self.convergence_criterion,
-                max_num_threads=self.max_num_threads,
-            ),
-            adaptive_threshold=AdaptiveThresholdConfig(
-                fixed_threshold=self.fixed_threshold,
-                initial_threshold=self.initial_threshold,
-                min_motion_th=self.min_motion_th,
-            ),
-        )
+__all__ = ["KissIcpOptions", "pose_stamp_ns", "run_kiss_icp"]
 
 
 def pose_stamp_ns(scan: LidarScan, deskew: bool) -> int:
@@ -80,8 +38,33 @@ def pose_stamp_ns(scan: LidarScan, deskew: bool) -> int:
     return (scan.stamp_ns + scan.end_stamp_ns) // 2
 
 
+def _register_iterated(odom, frame: np.ndarray, times: np.ndarray, iterations: int) -> None:  # noqa: ANN001
+    """``KissICP.register_frame`` with the deskew repeated using the motion just estimated."""
+    guess = odom.last_pose @ odom.last_delta
+    sigma = odom.adaptive_threshold.get_threshold()
+    delta, pose = odom.last_delta, guess
+    for _ in range(iterations):
+        deskewed = odom.preprocessor.preprocess(frame, times, delta)
+        source, frame_downsample = odom.voxelize(deskewed)
+        pose = odom.registration.align_points_to_map(
+            points=source,
+            voxel_map=odom.local_map,
+            initial_guess=pose,
+            max_correspondance_distance=3 * sigma,
+            kernel=sigma,
+        )
+        delta = np.linalg.inv(odom.last_pose) @ pose
+    odom.adaptive_threshold.update_model_deviation(np.linalg.inv(guess) @ pose)
+    odom.local_map.update(frame_downsample, pose)
+    odom.last_delta = delta
+    odom.last_pose = pose
+
+
 def run_kiss_icp(
-    scans: Sequence[LidarScan], options: KissIcpOptions | None = None, progress: bool = False
+    scans: Sequence[LidarScan],
+    options: KissIcpOptions | None = None,
+    progress: bool = False,
+    deskew_iterations: int = 1,
 ) -> Trajectory:
     """Runs KISS-ICP over ``scans`` (time order) and returns the LiDAR trajectory.
 
@@ -89,6 +72,7 @@ def run_kiss_icp(
         scans: LiDAR scans with per-point ``offset_s``.
         options: KISS-ICP settings (defaults if ``None``).
         progress: Show a rich progress bar.
+        deskew_iterations: 1 = stock KISS-ICP; more = iterated deskewing (module docstring).
 
     Returns:
         ``T_kiss_icp_map_lidar`` poses (``body_frame="lidar"``) stamped per :func:`pose_stamp_ns`.
@@ -113,7 +97,10 @@ def run_kiss_icp(
     for scan in items:
         frame = np.asarray(scan.points_lidar, dtype=np.float64)
         times = np.asarray(scan.offset_s, dtype=np.float64) if opts.deskew else np.zeros(0)
-        odom.register_frame(frame, times)
+        if deskew_iterations > 1 and opts.deskew:
+            _register_iterated(odom, frame, times, deskew_iterations)
+        else:
+            odom.register_frame(frame, times)
         stamps.append(pose_stamp_ns(scan, opts.deskew))
         poses.append(odom.last_pose.copy())
     stamps_arr = np.asarray(stamps, dtype=np.int64)

@@ -145,7 +145,7 @@ def test_tracks_ground_truth_with_the_true_extrinsic(handheld_run, handheld_segm
     err = _ape(out, handheld_run.gt_lidar)
     assert out.valid.all() and int(out.status[0]) == int(CandidateStatus.OK)
     # Measured 3-4 mm RMSE, 8-10 mm max on this sequence (and on a 40 s one, see
-    # benchmarks/bench_gtsam.py); the bounds leave a 3-5x margin.
+    # benchmarks/bench_backends.py); the bounds leave a 3-5x margin.
     assert float(err.pow(2).mean().sqrt()) < 0.015, err
     assert float(err.max()) < 0.05, err
 

@@ -1,0 +1,214 @@
+"""Calibration accuracy and cost on simulated rigs, in the shape of the paper's tables.
+
+Run: ``python -m benchmarks.bench_calibration [--quick] [--only NAME ...] [--seeds N]``.
+Every case simulates its sequences (no bag I/O: the bag path is tested elsewhere), runs the
+full pipeline from no initial guess (selection → reference → PPO) and compares the result with
+the simulator's ground truth. Columns: per-axis |Δt| (cm), per-axis rotation error (Euler angles
+of R_gtᵀ R_est, deg), their norms, wall time, odometry evaluations. Results go to
+``benchmarks/results/calibration.json`` and ``calibration.md``.
+
+Targets (2 cores): handheld ≤ 2 cm and ≤ 0.5°; uav all-sequences ≤ 4 cm and ≤ 1.5°; a 40 s
+handheld calibration in ≤ 10 min with ≤ 5,000 candidate evaluations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from rich.console import Console
+from rich.table import Table
+
+from l2calib import geometry as geo
+from l2calib.recipe import load_recipe
+from l2calib.sim import SimConfig, simulate
+
+RESULTS = Path(__file__).parent / "results"
+RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
+
+
+@dataclass
+class Case:
+    """One benchmark row: which sequences, which recipe overrides."""
+
+    name: str
+    profile: str
+    seeds: list[int]  # one simulated sequence per seed (joint calibration if several)
+    duration_s: float = 40.0
+    overrides: list[str] = field(default_factory=list)
+    target: tuple[float, float] | None = None  # (cm, deg)
+
+
+def cases(quick: bool) -> list[Case]:
+    """The benchmark's rows (``quick``: a short smoke version of the main row)."""
+    if quick:
+        return [Case("handheld quick", "handheld", [0], 20.0, ["train.max_evaluations=640"])]
+    hh = [f"selection.budget_s={b}" for b in (15.0,)]
+    uav = ["selection.window_s=10", "selection.budget_s=40", "backend.options.window_scans=20"]
+    ugv = ["selection.window_s=10", "selection.budget_s=40"]
+    return [
+        Case("handheld", "handheld", [0], overrides=hh, target=(2.0, 0.5)),
+        Case("handheld gaussian", "handheld", [0], overrides=[*hh, "policy.name=gaussian"]),
+        Case("handheld no selection", "handheld", [0], overrides=["selection.enabled=false"]),
+        Case("handheld gt reference", "handheld", [0], overrides=[*hh, "reference.name=gt"]),
+        Case("uav seq 1", "uav", [11], overrides=uav),
+        Case("uav seq 2", "uav", [12], overrides=uav),
+        Case("uav all", "uav", [11, 12, 13], overrides=uav, target=(4.0, 1.5)),
+        Case("ugv seq 1", "ugv", [21], overrides=ugv),
+        Case("ugv all", "ugv", [21, 22, 23], overrides=ugv),
+    ]
+
+
+def rotation_errors_deg(T_gt: np.ndarray, T_est: np.ndarray) -> np.ndarray:
+    """Per-axis rotation error: Euler angles (deg) of ``R_gtᵀ R_est`` (the paper's metric)."""
+    R = torch.from_numpy(T_gt[:3, :3].T @ T_est[:3, :3])
+    return torch.rad2deg(geo.matrix_to_euler_rpy(R)).abs().numpy()
+
+
+def run_case(case: Case, train_seed: int) -> dict[str, Any]:
+    """Simulates the case's sequences and calibrates them; returns the row."""
+    import l2calib.pipeline as pipeline
+    from l2calib.interfaces import ReferenceTrajectory
+
+    runs = [
+        simulate(
+            SimConfig.model_validate(
+                {
+                    "duration_s": case.duration_s,
+                    "seed": s,
+                    "motion": {"profile": case.profile},
+                    "lidar": {"model": "ouster-os1-16"},
+                    "imu": {"model": "vn100"},
+                    "rig": RIG,
+                }
+            )
+        )
+        for s in case.seeds
+    ]
+    overrides = [o for o in case.overrides if o != "reference.name=gt"]
+    recipe = load_recipe("simulator", [*overrides, f"train.seed={train_seed}"])
+    sequences = [r.sequence() for r in runs]
+    t0 = time.monotonic()
+    if "reference.name=gt" in case.overrides:  # the simulator's exact LiDAR trajectory
+        gt = {r.sequence().name: r.gt_lidar for r in runs}
+        segments, selection = pipeline.select_segments(recipe, sequences)
+        refs = [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segments]
+        data = pipeline.PreparedData(sequences, segments, refs, selection)
+    else:
+        data = pipeline.prepare_data(recipe, sequences=sequences)
+    result, outcome = pipeline.train_policy(recipe, data, out_dir=None)
+    wall = time.monotonic() - t0
+    T_gt = runs[0].T_imu_lidar
+    dt_cm = np.abs(result.T_imu_lidar[:3, 3] - T_gt[:3, 3]) * 100
+    dr_deg = rotation_errors_deg(T_gt, result.T_imu_lidar)
+    angle = float(
+        torch.rad2deg(
+            geo.rotation_angle(torch.from_numpy(T_gt[:3, :3].T @ result.T_imu_lidar[:3, :3]))
+        )
+    )
+    return {
+        "case": case.name,
+        "train_seed": train_seed,
+        "sequences": len(runs),
+        "data_s": round(sum(s.duration_s for s in data.segments), 1),
+        "dt_cm": dt_cm.round(2).tolist(),
+        "dr_deg": dr_deg.round(3).tolist(),
+        "t_err_cm": round(float(np.linalg.norm(dt_cm)), 2),
+        "r_err_deg": round(angle, 3),
+        "wall_s": round(wall, 1),
+        "evaluations": result.evaluations,
+        "iterations": result.iterations,
+        "stop": result.stop_reason,
+        "undetermined": result.undetermined,
+        "target": case.target,
+        "load": [round(x, 2) for x in os.getloadavg()],
+    }
+
+
+def _table(rows: list[dict[str, Any]]) -> Table:
+    t = Table(title="calibration from no initial guess (simulated, OS1-16 + VN100)")
+    for col in (
+        "case",
+        "seed",
+        "|Δt| x/y/z cm",
+        "|Δr| r/p/y deg",
+        "t cm",
+        "r deg",
+        "wall s",
+        "evals",
+        "target",
+    ):
+        t.add_column(col)
+    for r in rows:
+        ok = ""
+        if r["target"]:
+            ok = (
+                "met"
+                if r["t_err_cm"] <= r["target"][0] and r["r_err_deg"] <= r["target"][1]
+                else "MISSED"
+            )
+        t.add_row(
+            r["case"],
+            str(r["train_seed"]),
+            " / ".join(f"{v:.2f}" for v in r["dt_cm"]),
+            " / ".join(f"{v:.3f}" for v in r["dr_deg"]),
+            f"{r['t_err_cm']:.2f}",
+            f"{r['r_err_deg']:.3f}",
+            f"{r['wall_s']:.0f}",
+            str(r["evaluations"]),
+            ok,
+        )
+    return t
+
+
+def _markdown(rows: list[dict[str, Any]]) -> str:
+    cols = "case | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
+    lines = [f"| {cols} |", "|" + "---|" * len(cols.split("|"))]
+    for r in rows:
+        dt = " / ".join(f"{v:.2f}" for v in r["dt_cm"])
+        dr = " / ".join(f"{v:.3f}" for v in r["dr_deg"])
+        lines.append(
+            f"| {r['case']} | {r['train_seed']} | {r['data_s']} | {dt} | {dr} | "
+            f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
+            f"{r['evaluations']} |"
+        )
+    return "\n".join(lines) + "\n"
+
+
+def main() -> None:
+    """Runs the cases, prints the table, writes JSON and markdown."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--quick", action="store_true")
+    parser.add_argument("--only", nargs="*", default=None, help="case names to run")
+    parser.add_argument("--seeds", type=int, default=1, help="training seeds per case")
+    parser.add_argument("--out", type=Path, default=RESULTS / "calibration.json")
+    args = parser.parse_args()
+    torch.set_default_dtype(torch.float64)
+    console = Console()
+    rows = []
+    existing = json.loads(args.out.read_text()) if args.out.is_file() and args.only else {}
+    for case in cases(args.quick):
+        if args.only and case.name not in args.only:
+            continue
+        for seed in range(args.seeds):
+            console.print(f"[cyan]•[/] {case.name} (train seed {seed})")
+            rows.append(run_case(case, seed))
+            console.print(_table(rows[-1:]))
+    if existing:  # keep rows of cases not re-run
+        names = {r["case"] for r in rows}
+        rows = [r for r in existing.get("rows", []) if r["case"] not in names] + rows
+    console.print(_table(rows))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"rows": rows, "machine": os.uname().nodename}, indent=1))
+    args.out.with_suffix(".md").write_text(_markdown(rows))
+
+
+if __name__ == "__main__":
+    main()

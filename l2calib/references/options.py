@@ -1,0 +1,202 @@
+"""Options of the built-in reference sources (light: pydantic only, no numpy/torch/kiss-icp).
+
+These are the models behind ``reference.options`` in a recipe. ``l2calib recipe dump`` prints them
+with their defaults; unknown keys are errors.
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+from pydantic import Field, field_validator, model_validator
+
+from l2calib.errors import ReferenceSourceError
+from l2calib.recipe import StrictModel
+
+
+class KissIcpOptions(StrictModel):
+    """KISS-ICP settings (a flat view of its ``KISSConfig``)."""
+
+    voxel_size: float | None = Field(None, gt=0, description="m; default: max_range_m / 100")
+    max_range_m: float = Field(100.0, gt=0)
+    min_range_m: float = Field(0.5, ge=0)
+    deskew: bool = Field(True, description="motion-compensate with per-point times")
+    max_points_per_voxel: int = Field(20, ge=1)
+    initial_threshold: float = Field(2.0, gt=0, description="initial correspondence threshold (m)")
+    min_motion_th: float = Field(0.1, ge=0)
+    fixed_threshold: float | None = Field(None, gt=0)
+    max_num_iterations: int = Field(500, ge=1)
+    convergence_criterion: float = Field(1e-4, gt=0)
+    max_num_threads: int = Field(0, ge=0, description="0: all cores")
+
+    def kiss_config(self):  # noqa: ANN201 - kiss_icp.config.KISSConfig, imported lazily
+        """The equivalent ``kiss_icp.config.KISSConfig``."""
+        from kiss_icp.config import KISSConfig
+        from kiss_icp.config.config import (
+            AdaptiveThresholdConfig,
+            DataConfig,
+            MappingConfig,
+            RegistrationConfig,
+        )
+
+        if self.min_range_m >= self.max_range_m:
+            raise ReferenceSourceError(
+                f"kiss-icp: min_range_m ({self.min_range_m}) >= max_range_m ({self.max_range_m})",
+                fix="make min_range_m smaller than max_range_m",
+            )
+        return KISSConfig(
+            data=DataConfig(
+                max_range=self.max_range_m, min_range=self.min_range_m, deskew=self.deskew
+            ),
+            mapping=MappingConfig(
+                voxel_size=self.voxel_size or self.max_range_m / 100.0,
+                max_points_per_voxel=self.max_points_per_voxel,
+            ),
+            registration=RegistrationConfig(
+                max_num_iterations=self.max_num_iterations,
+                convergence_criterion=self.convergence_criterion,
+                max_num_threads=self.max_num_threads,
+            ),
+            adaptive_threshold=AdaptiveThresholdConfig(
+                fixed_threshold=self.fixed_threshold,
+                initial_threshold=self.initial_threshold,
+                min_motion_th=self.min_motion_th,
+            ),
+        )
+
+
+class CacheOptions(StrictModel):
+    """Where computed references are cached (see :mod:`l2calib.references.cache`)."""
+
+    cache: bool = Field(True, description="reuse references computed earlier for the same input")
+    cache_dir: str | None = Field(
+        None, description="default: $L2CALIB_CACHE/references or ~/.cache/l2calib/references"
+    )
+
+
+class KissIcpReferenceOptions(KissIcpOptions, CacheOptions):
+    """``reference: {name: kiss-icp, options: ...}``: KISS-ICP settings plus how it is run."""
+
+    deskew_iterations: int = Field(
+        3,
+        ge=1,
+        le=5,
+        description="1: stock KISS-ICP; more: deskew again with the motion just estimated for the "
+        "scan and re-register (robust to fast, changing rotation such as a hand-swung rig)",
+    )
+    margin_s: float = Field(
+        1.0,
+        ge=0,
+        description="warm-up: also run on this many seconds of scans before each segment (when "
+        "the pipeline passes the sequences), then keep only the segment's poses",
+    )
+
+
+class TransformSpec(StrictModel):
+    """A rigid transform as translation plus roll-pitch-yaw (degrees) or quaternion (xyzw)."""
+
+    translation_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    rpy_deg: tuple[float, float, float] | None = Field(
+        None, description="R = Rz(yaw) Ry(pitch) Rx(roll)"
+    )
+    quat_xyzw: tuple[float, float, float, float] | None = None
+
+    @model_validator(mode="after")
+    def _one_rotation(self) -> TransformSpec:
+        if self.rpy_deg is not None and self.quat_xyzw is not None:
+            raise ValueError("give the rotation as rpy_deg or quat_xyzw, not both")
+        if self.quat_xyzw is not None and abs(sum(q * q for q in self.quat_xyzw) - 1.0) > 1e-3:
+            raise ValueError("quat_xyzw must be a unit quaternion in the order qx qy qz qw")
+        return self
+
+
+class GtFileOptions(StrictModel):
+    """``reference: {name: gt-file, options: ...}``: a ground-truth trajectory file."""
+
+    path: str = Field(..., description="trajectory file (TUM, KITTI poses or CSV)")
+    format: Literal["auto", "tum", "kitti", "csv"] = Field(
+        "auto", description="auto: from the extension (.tum/.txt, .kitti, .csv)"
+    )
+    times_path: str | None = Field(None, description="KITTI times file (seconds, one per line)")
+    body_frame: Literal["lidar", "imu", "other"] = Field(
+        "lidar",
+        description="the frame the file's poses describe; imu/other need T_body_lidar (see docs)",
+    )
+    T_body_lidar: list[list[float]] | TransformSpec | None = Field(
+        None, description="pose of the LiDAR in the file's body frame: 4x4 rows or a transform"
+    )
+    time_offset_s: float = Field(
+        0.0, description="added to the file's stamps: t_lidar = t_file + time_offset_s"
+    )
+    constrains: Literal["auto", "pose", "position"] = Field(
+        "auto", description="auto: position for body_frame imu (see docs), pose otherwise"
+    )
+    max_gap_s: float = Field(0.2, gt=0, description="largest gap between poses inside a segment")
+    check_imu: bool = Field(
+        True,
+        description="compare the file's rotation rate with the IMU gyro (catches clock offsets "
+        "and wrong quaternion order)",
+    )
+
+    @field_validator("T_body_lidar")
+    @classmethod
+    def _matrix_shape(cls, v: list[list[float]] | TransformSpec | None):  # noqa: ANN206
+        if isinstance(v, list) and (len(v) != 4 or any(len(r) != 4 for r in v)):
+            raise ValueError("a matrix T_body_lidar must be 4 rows of 4 numbers")
+        return v
+
+    @model_validator(mode="after")
+    def _frames(self) -> GtFileOptions:
+        if self.body_frame == "lidar" and self.T_body_lidar is not None:
+            raise ValueError(
+                "body_frame is lidar but T_body_lidar is given: set body_frame to imu or other, "
+                "or drop T_body_lidar"
+            )
+        if self.body_frame != "lidar" and self.T_body_lidar is None:
+            raise ValueError(
+                f"body_frame {self.body_frame} needs T_body_lidar (the LiDAR pose in that frame)"
+            )
+        if self.format == "kitti" and self.times_path is None:
+            raise ValueError("format kitti needs times_path (KITTI poses carry no stamps)")
+        return self
+
+
+class RtkOptions(CacheOptions):
+    """``reference: {name: rtk, options: ...}``: GNSS/RTK fixes as a position-only reference."""
+
+    topic: str | None = Field(None, description="NavSatFix topic; default: data.rtk_topic")
+    bag_path: str | None = Field(
+        None, description="read the fixes from this bag instead of the segment's own bag"
+    )
+    lever_arm_m: tuple[float, float, float] = Field(
+        (0.0, 0.0, 0.0), description="antenna phase centre in the LiDAR frame (t_lidar_antenna)"
+    )
+    orientation: Literal["kiss-icp", "none"] = Field(
+        "kiss-icp",
+        description="LiDAR attitude for the lever arm (and for backends that start from the "
+        "reference): KISS-ICP rotations aligned to the fixes; none: identity (zero lever arm)",
+    )
+    kiss_icp: KissIcpReferenceOptions = Field(
+        default_factory=KissIcpReferenceOptions, description="settings of that KISS-ICP run"
+    )
+    min_status: Literal[0, 1, 2] = Field(
+        0, description="lowest NavSatStatus accepted: 0 fix, 1 SBAS, 2 GBAS/RTK"
+    )
+    max_sigma_m: float = Field(
+        0.1, gt=0, description="drop fixes whose reported standard deviation is larger (m)"
+    )
+    time_offset_s: float = Field(
+        0.0, description="added to the fix stamps: t_lidar = t_fix + time_offset_s"
+    )
+    origin: tuple[float, float, float] | None = Field(
+        None, description="ENU origin (lat deg, lon deg, ellipsoidal height m); default: first fix"
+    )
+    min_fixes: int = Field(10, ge=3, description="fewest usable fixes per segment")
+
+    @model_validator(mode="after")
+    def _lever(self) -> RtkOptions:
+        if self.orientation == "none" and any(abs(v) > 0 for v in self.lever_arm_m):
+            raise ValueError(
+                "a non-zero lever_arm_m needs the LiDAR attitude: set orientation to kiss-icp"
+            )
+        return self
