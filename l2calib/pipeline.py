@@ -24,7 +24,6 @@ from l2calib.recipe import Recipe
 
 log = logging.getLogger("l2calib")
 
-AXES = ("x", "y", "z")
 
 
 @dataclass
@@ -97,39 +96,36 @@ def prepare_data(
 
 
 def undetermined_axes(
-    rotation_sigma_deg: Sequence[float],
-    translation_sigma_m: Sequence[float],
+    resolution: Any,
     selection: Any | None,
     rot_limit_deg: float = 1.0,
     trans_limit_m: float = 0.05,
 ) -> list[str]:
-    """Axes the data could not determine: wide policy spread or weak excitation."""
-    out = [
-        f"rotation about {a} (sigma {s:.2f} deg)"
-        for a, s in zip(AXES, rotation_sigma_deg, strict=True)
-        if s > rot_limit_deg
-    ]
-    out += [
-        f"translation along {a} (sigma {100 * s:.1f} cm)"
-        for a, s in zip(AXES, translation_sigma_m, strict=True)
-        if s > trans_limit_m
-    ]
+    """Axes the data could not determine: flat reward along them, or weak excitation."""
+    from l2calib.sensitivity import undetermined
+
+    out = undetermined(resolution, rot_limit_deg, trans_limit_m)
     if selection is not None:
         out += [f"weakly excited: {w}" for w in selection.weak_axes]
     return out
 
 
-def _score_mode(env, action: torch.Tensor) -> float:
-    """Reward of the policy's mode (one backend evaluation per worker)."""
-    from l2calib.env import CalibrationEnv, action_to_extrinsic
+def _score_batch(
+    recipe: Recipe, env, data: PreparedData, T_imu_lidar: torch.Tensor, time_offset_s: float | None
+) -> torch.Tensor:
+    """Rewards ``[N]`` of ``N`` extrinsics (one batched backend call in this process)."""
+    from l2calib.env import CalibrationEnv
+    from l2calib.train.envs import make_env
 
-    if isinstance(env, CalibrationEnv):
-        T, offset = action_to_extrinsic(action[None])
-        breakdown, _ = env.score_candidates(T, offset)
-        return float(breakdown.reward[0])
-    td = env.reset()
-    td["action"] = action.expand(*td.batch_size, action.shape[-1]).clone()
-    return float(env.step(td)["next", "reward"].reshape(-1)[0])
+    offsets = None
+    if time_offset_s is not None:
+        offsets = torch.full((T_imu_lidar.shape[0],), float(time_offset_s), dtype=torch.float64)
+    if not isinstance(env, CalibrationEnv):  # worker processes: score here instead
+        env = make_env(
+            recipe.model_dump(mode="json"), data.segments, data.references, T_imu_lidar.shape[0]
+        )
+    breakdown, _ = env.score_candidates(T_imu_lidar, offsets)
+    return breakdown.reward.detach().to(torch.float64)
 
 
 def train_policy(
@@ -162,29 +158,31 @@ def train_policy(
         trainer.resume()
     say("training")
     outcome = trainer.run(progress)
+    from l2calib import sensitivity
+
     mode = policy.mode()
-    action = torch.cat(
-        [
-            torch.from_numpy(CalibrationResult(np.asarray(mode["T_imu_lidar"])).quat_xyzw),
-            torch.as_tensor(mode["T_imu_lidar"])[:3, 3],
-        ]
-        + ([torch.tensor([mode["time_offset_s"]])] if cfg.estimate_time_offset else [])
-    ).to(torch.float64)
-    final_reward = _score_mode(env, action)
-    env.close()
+    T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
+    offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
+    say("probing the reward around the result (per-axis resolution)")
+    candidates = sensitivity.probe(T_mode)
+    rewards = _score_batch(recipe, env, data, candidates, offset)
+    if not getattr(env, "is_closed", False):  # the collector may have closed worker envs
+        env.close()
+    resolution = sensitivity.resolve(rewards)
     unc = policy.uncertainty()
     rot_sigma = [float(x) for x in unc["rotation_sigma_deg"]]
     trans_sigma = [float(x) for x in unc["translation_sigma_m"]]
     return CalibrationResult(
-        T_imu_lidar=np.asarray(mode["T_imu_lidar"], dtype=np.float64),
-        time_offset_s=mode.get("time_offset_s") if cfg.estimate_time_offset else None,
+        T_imu_lidar=T_mode.numpy(),
+        time_offset_s=offset,
         rotation_sigma_deg=rot_sigma,
         translation_sigma_m=trans_sigma,
         time_offset_sigma_s=unc.get("time_offset_sigma_s"),
-        final_reward=final_reward,
-        evaluations=outcome.evaluations + 1,
+        final_reward=resolution.reward,
+        evaluations=outcome.evaluations + candidates.shape[0],
         iterations=len(outcome.history),
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
-        undetermined=undetermined_axes(rot_sigma, trans_sigma, data.selection),
+        resolution=resolution,
+        undetermined=undetermined_axes(resolution, data.selection),
     ), outcome

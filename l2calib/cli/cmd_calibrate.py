@@ -81,9 +81,21 @@ def print_result(console, result, truth=None) -> None:
     t = result.T_imu_lidar[:3, 3]
     table.add_row("calibrated translation (m)", *(f"{v:+.4f}" for v in t))
     table.add_row("calibrated rotation (deg)", *(f"{v:+.3f}" for v in result.rpy_deg))
+    if result.resolution is not None:
+        res = result.resolution
+        table.add_row(
+            "resolution translation (cm)",
+            *("flat" if not np.isfinite(v) else f"{100 * v:.2f}" for v in res.translation_m),
+        )
+        table.add_row(
+            "resolution rotation (deg)",
+            *("flat" if not np.isfinite(v) else f"{v:.3f}" for v in res.rotation_deg),
+        )
     if result.translation_sigma_m:
-        table.add_row("σ translation (cm)", *(f"{100 * v:.2f}" for v in result.translation_sigma_m))
-        table.add_row("σ rotation (deg)", *(f"{v:.3f}" for v in result.rotation_sigma_deg))
+        table.add_row(
+            "policy σ translation (cm)", *(f"{100 * v:.2f}" for v in result.translation_sigma_m)
+        )
+        table.add_row("policy σ rotation (deg)", *(f"{v:.3f}" for v in result.rotation_sigma_deg))
     if truth is not None:
         gt = CalibrationResult(truth)
         table.add_row("ground truth translation (m)", *(f"{v:+.4f}" for v in truth[:3, 3]))

@@ -30,6 +30,9 @@ def demo(
     from l2calib.recipe import load_recipe
     from l2calib.sim import SimConfig, simulate, write_run
 
+    import time
+
+    t0 = time.monotonic()
     console = Console()
     recipe = load_recipe("simulator", [f"train.seed={seed}", *set_])
     out = prepare_out_dir(out, resume=False, force=force)
@@ -56,6 +59,7 @@ def demo(
         truth=run.T_imu_lidar,
         console=console,
     )
+    console.print(f"demo finished in {time.monotonic() - t0:.0f} s")
 
 
 def register(app: typer.Typer) -> None:

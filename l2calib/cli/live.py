@@ -40,6 +40,18 @@ class CalibrationDisplay:
 
     def update(self, record: Any) -> None:
         """Refreshes with one :class:`~l2calib.train.ppo.IterationRecord`."""
+        if not self.console.is_terminal:  # a log file or CI: a plain line every 10 iterations
+            if record.iteration % 10 == 0:
+                t = ", ".join(f"{100 * v:+.1f}" for v in record.translation_m)
+                rpy = ", ".join(f"{v:+.2f}" for v in record.rpy_deg)
+                self.console.print(
+                    f"  iteration {record.iteration + 1}: evaluations {record.evaluations}, "
+                    f"reward mean {record.reward_mean:.4f} best {record.reward_max:.4f}, "
+                    f"t [{t}] cm, rpy [{rpy}] deg, max σ {max(record.rotation_sigma_deg):.2f} deg "
+                    f"{100 * max(record.translation_sigma_m):.1f} cm",
+                    highlight=False,
+                )
+            return
         t = [100 * v for v in record.translation_m]
         ts = [100 * v for v in record.translation_sigma_m]
         table = Table(box=None, show_header=True, header_style="bold")

@@ -10,6 +10,7 @@ import pytest
 import yaml
 
 from l2calib.recipe import builtin_recipes, load_recipe
+from l2calib.sensitivity import probe
 
 #: recipe -> (simulated LiDAR model, IMU model, motion profile)
 LAYOUTS = {
@@ -71,7 +72,9 @@ def test_recipe_trains_two_iterations(name, tmp_path):
         console=Console(quiet=True),
     )
     assert result.iterations == 2
-    assert result.evaluations == 2 * 8 + 1
+    n_probe = len(probe(result.T_imu_lidar))  # the per-axis resolution probe after training
+    assert result.evaluations == 2 * 8 + n_probe
     out = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
+    assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
     assert len(out["T_imu_lidar"]) == 4 and "extrinsic_T" in out["fast_lio"]
     assert (tmp_path / "out" / "report.png").stat().st_size > 10_000

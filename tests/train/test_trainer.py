@@ -7,6 +7,7 @@ from fakes import reference, tiny_sequence
 from l2calib.errors import ConfigError, TrainingError
 from l2calib.pipeline import PreparedData, train_policy
 from l2calib.recipe import Recipe
+from l2calib.sensitivity import probe
 
 
 def _data():
@@ -34,7 +35,9 @@ def _run(recipe, out=None, resume=False, progress=None):
 def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     result, outcome = _run(_recipe(), tmp_path)
     assert len(outcome.history) == 3
-    assert result.evaluations == 3 * 8 + 1
+    assert outcome.evaluations == 3 * 8
+    assert result.evaluations == 3 * 8 + len(probe(result.T_imu_lidar))  # + resolution probe
+    assert len(result.resolution.rotation_deg) == 3
     assert (tmp_path / "checkpoint.pt").is_file()
     assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
 
