@@ -23,14 +23,14 @@ def demo(
     force: bool = typer.Option(False, "--force", help="Move an existing --out aside first."),
 ) -> None:
     """Simulate a handheld LiDAR+IMU bag, calibrate it from no initial guess, show the error."""
+    import time
+
     from rich.console import Console
 
     from l2calib.cli.cmd_calibrate import run_calibration
     from l2calib.outputs.writer import prepare_out_dir
     from l2calib.recipe import load_recipe
     from l2calib.sim import SimConfig, simulate, write_run
-
-    import time
 
     t0 = time.monotonic()
     console = Console()
