@@ -50,19 +50,22 @@ def cases(quick: bool) -> list[Case]:
     """The benchmark's rows (``quick``: a short smoke version of the main row)."""
     if quick:
         return [Case("handheld quick", "handheld", [0], 20.0, ["train.max_evaluations=640"])]
-    hh = [f"selection.budget_s={b}" for b in (15.0,)]
-    uav = ["selection.window_s=10", "selection.budget_s=40", "backend.options.window_scans=20"]
-    ugv = ["selection.window_s=10", "selection.budget_s=40"]
+    # KISS-ICP cannot yet serve as a reference on the simulator's aggressive 16-beam motion
+    # (docs/references.md), so the main rows use the simulated LiDAR trajectory as a gt-file
+    # reference and one row shows the KISS-ICP path as it is today.
+    gt = "reference.name=gt"
+    hh = ["selection.budget_s=15", gt]
+    uav = ["selection.window_s=10", "selection.budget_s=20", "backend.options.window_scans=20", gt]
+    ugv = ["selection.window_s=10", "selection.budget_s=20", gt]
     return [
         Case("handheld", "handheld", [0], overrides=hh, target=(2.0, 0.5)),
         Case("handheld gaussian", "handheld", [0], overrides=[*hh, "policy.name=gaussian"]),
-        Case("handheld no selection", "handheld", [0], overrides=["selection.enabled=false"]),
-        Case("handheld gt reference", "handheld", [0], overrides=[*hh, "reference.name=gt"]),
-        Case("uav seq 1", "uav", [11], overrides=uav),
-        Case("uav seq 2", "uav", [12], overrides=uav),
+        Case("handheld kiss-icp", "handheld", [0], overrides=["selection.budget_s=15"]),
+        Case("handheld no selection", "handheld", [0], 15.0, ["selection.enabled=false", gt]),
         Case("uav all", "uav", [11, 12, 13], overrides=uav, target=(4.0, 1.5)),
-        Case("ugv seq 1", "ugv", [21], overrides=ugv),
         Case("ugv all", "ugv", [21, 22, 23], overrides=ugv),
+        Case("uav seq 1", "uav", [11], overrides=uav),
+        Case("ugv seq 1", "ugv", [21], overrides=ugv),
     ]
 
 
@@ -117,6 +120,9 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "case": case.name,
         "train_seed": train_seed,
         "sequences": len(runs),
+        "reference": "gt (simulated LiDAR trajectory)"
+        if "reference.name=gt" in case.overrides
+        else recipe.reference.name,
         "data_s": round(sum(s.duration_s for s in data.segments), 1),
         "dt_cm": dt_cm.round(2).tolist(),
         "dr_deg": dr_deg.round(3).tolist(),
@@ -175,7 +181,8 @@ def _markdown(rows: list[dict[str, Any]]) -> str:
         dt = " / ".join(f"{v:.2f}" for v in r["dt_cm"])
         dr = " / ".join(f"{v:.3f}" for v in r["dr_deg"])
         lines.append(
-            f"| {r['case']} | {r['train_seed']} | {r['data_s']} | {dt} | {dr} | "
+            f"| {r['case']} ({r.get('reference', '')}) | {r['train_seed']} | {r['data_s']} | "
+            f"{dt} | {dr} | "
             f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
             f"{r['evaluations']} |"
         )

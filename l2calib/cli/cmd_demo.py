@@ -21,6 +21,13 @@ def demo(
     duration: float = typer.Option(20.0, "--duration", help="Simulated seconds."),
     set_: list[str] = typer.Option([], "--set", help="Override a field of the demo recipe."),
     force: bool = typer.Option(False, "--force", help="Move an existing --out aside first."),
+    reference: str = typer.Option(
+        "gt-file",
+        "--reference",
+        help="gt-file: the simulated LiDAR trajectory as a ground-truth file (as from motion "
+        "capture); kiss-icp: LiDAR-only odometry (not accurate enough on this aggressive 16-beam "
+        "motion yet: see docs/references.md).",
+    ),
 ) -> None:
     """Simulate a handheld LiDAR+IMU bag, calibrate it from no initial guess, show the error."""
     import time
@@ -28,13 +35,17 @@ def demo(
     from rich.console import Console
 
     from l2calib.cli.cmd_calibrate import run_calibration
+    from l2calib.errors import ConfigError
     from l2calib.outputs.writer import prepare_out_dir
     from l2calib.recipe import load_recipe
     from l2calib.sim import SimConfig, simulate, write_run
 
     t0 = time.monotonic()
     console = Console()
-    recipe = load_recipe("simulator", [f"train.seed={seed}", *set_])
+    if reference not in ("gt-file", "kiss-icp"):
+        raise ConfigError(f"--reference {reference}: unknown", fix="use gt-file or kiss-icp")
+    overrides = [f"train.seed={seed}", *set_]
+    load_recipe("simulator", overrides)  # fail on a bad --set before simulating
     out = prepare_out_dir(out, resume=False, force=force)
     cfg = SimConfig.model_validate(
         {
@@ -52,6 +63,17 @@ def demo(
     sim_dir = out / "simulated"
     files = write_run(run, sim_dir, progress=console.is_terminal)
     console.print(f"[cyan]•[/] wrote {files['bag']} and its ground truth")
+    if reference == "gt-file":
+        overrides = [
+            "reference.name=gt-file",
+            f"reference.options.path={files['gt_lidar']}",
+            *overrides,
+        ]
+        console.print(
+            f"[cyan]•[/] reference: {files['gt_lidar']} (the LiDAR's own trajectory, as a "
+            "motion-capture file would give it; the extrinsic is still learnt from IMU + LiDAR)"
+        )
+    recipe = load_recipe("simulator", overrides)
     run_calibration(
         recipe,
         out / "calibration",

@@ -81,9 +81,10 @@ def evaluate(
         overrides += ["reference.name=gt-file", f"reference.options.path={reference}"]
     rec = load_recipe(recipe, overrides)
     console = Console()
-    extrinsics = {extrinsic.name if compare is None else f"{extrinsic}": read_extrinsic(extrinsic)}
-    if compare is not None:
-        extrinsics[f"{compare}"] = read_extrinsic(compare)
+    paths = [extrinsic] if compare is None else [extrinsic, compare]
+    # label by file name; the whole path only when the names clash
+    unique = len({p.name for p in paths}) == len(paths)
+    extrinsics = {(p.name if unique else str(p)): read_extrinsic(p) for p in paths}
     sequences = open_sequences(
         bag, rec.data, auto_topics=recipe is None, progress=console.is_terminal
     )

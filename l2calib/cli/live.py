@@ -28,11 +28,13 @@ class CalibrationDisplay:
                          transient=False)  # fmt: skip
 
     def __enter__(self) -> CalibrationDisplay:
-        self.live.__enter__()
+        if self.console.is_terminal:  # off a terminal, update() prints plain lines instead
+            self.live.__enter__()
         return self
 
     def __exit__(self, *exc: Any) -> None:
-        self.live.__exit__(*exc)
+        if self.console.is_terminal:
+            self.live.__exit__(*exc)
 
     def stage(self, message: str) -> None:
         """Prints a pipeline stage line above the live area."""

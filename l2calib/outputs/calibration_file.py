@@ -113,10 +113,22 @@ def _finite(resolution: Any | None, name: str, digits: int) -> list[float | None
     return [None if not np.isfinite(v) else round(float(v), digits) for v in vals]
 
 
+class _FlowRowsDumper(yaml.SafeDumper):
+    """Writes lists of numbers on one line (``[a, b, c]``): matrices read as rows."""
+
+
+def _represent_list(dumper: yaml.SafeDumper, data: list) -> yaml.Node:
+    flow = all(isinstance(v, (int, float)) or v is None for v in data)
+    return dumper.represent_sequence("tag:yaml.org,2002:seq", data, flow_style=flow)
+
+
+_FlowRowsDumper.add_representer(list, _represent_list)
+
+
 def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
     """Writes ``calibration.yaml`` (never over a file the user made: see ``l2calib.outputs``)."""
     path = Path(path)
-    text = HEADER + yaml.safe_dump(result.to_dict(), sort_keys=False, width=100)
+    text = HEADER + yaml.dump(result.to_dict(), Dumper=_FlowRowsDumper, sort_keys=False, width=120)
     path.write_text(text)
     return path
 

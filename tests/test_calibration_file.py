@@ -1,0 +1,67 @@
+"""calibration.yaml: content, round trip, and the demo command end to end (tiny budget)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from l2calib import geometry as geo
+from l2calib.errors import DataError
+from l2calib.outputs.calibration_file import CalibrationResult, read_extrinsic, write_calibration
+from l2calib.sensitivity import AxisResolution
+
+
+def _T() -> np.ndarray:
+    R = geo.euler_rpy_to_matrix(torch.deg2rad(torch.tensor([180.0, 0.0, 90.0])))
+    return geo.make_transform(R, torch.tensor([0.12, -0.05, 0.08])).numpy()
+
+
+def test_round_trip_and_paste_ready_forms(tmp_path):
+    res = AxisResolution([0.2, math.inf, 0.1], [0.01, 0.02, math.inf], 0.95)
+    result = CalibrationResult(_T(), resolution=res, undetermined=["rotation about LiDAR y"])
+    path = write_calibration(tmp_path / "calibration.yaml", result)
+    data = yaml.safe_load(path.read_text())
+    T, offset = read_extrinsic(path)
+    assert np.allclose(T, _T(), atol=1e-9) and offset is None
+    assert np.allclose(np.array(data["T_lidar_imu"]) @ _T(), np.eye(4), atol=1e-8)
+    assert data["fast_lio"]["extrinsic_T"] == pytest.approx([0.12, -0.05, 0.08])
+    assert np.allclose(np.reshape(data["fast_lio"]["extrinsic_R"], (3, 3)), _T()[:3, :3], atol=1e-8)
+    R_rpy = geo.euler_rpy_to_matrix(torch.deg2rad(torch.tensor(data["rpy_deg"])))
+    assert np.allclose(R_rpy.numpy(), _T()[:3, :3], atol=1e-5)  # roll ±180 are the same
+    assert 'xyz="0.120000 -0.050000 0.080000"' in data["urdf"]
+    unc = data["uncertainty"]
+    assert unc["resolution_rotation_deg"] == [0.2, None, 0.1]
+    assert unc["resolution_translation_m"] == [0.01, 0.02, None]
+    assert unc["undetermined"] == ["rotation about LiDAR y"]
+
+
+def test_reading_a_file_without_an_extrinsic_names_the_fix(tmp_path):
+    p = tmp_path / "x.yaml"
+    p.write_text("foo: 1\n")
+    with pytest.raises(DataError, match="no extrinsic found") as info:
+        read_extrinsic(p)
+    assert "x.yaml" in str(info.value)
+
+
+def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
+    from typer.testing import CliRunner
+
+    from l2calib.cli.app import app
+
+    out = tmp_path / "demo"
+    res = CliRunner(env={"COLUMNS": "140"}).invoke(
+        app,
+        [
+            "demo", "--out", str(out), "--duration", "5",
+            "--set", "train.max_iterations=2", "--set", "train.candidates_per_iteration=8",
+            "--set", "selection.window_s=3", "--set", "selection.budget_s=3",
+        ],
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    assert "ground truth translation" in res.output and "demo finished" in res.output
+    T, _ = read_extrinsic(out / "calibration" / "calibration.yaml")
+    assert T.shape == (4, 4) and (out / "simulated" / "gt_lidar.tum").is_file()
