@@ -137,6 +137,7 @@ def train_policy(
     stage: Callable[[str], None] | None = None,
 ) -> tuple[CalibrationResult, Any]:
     """Builds env + policy from the recipe, runs PPO; returns the calibration and the outcome."""
+    from l2calib import sensitivity
     from l2calib.plugins import get_plugin
     from l2calib.train.checkpoint import recipe_fingerprint
     from l2calib.train.envs import make_training_env
@@ -158,8 +159,6 @@ def train_policy(
         trainer.resume()
     say("training")
     outcome = trainer.run(progress)
-    from l2calib import sensitivity
-
     mode = policy.mode()
     T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
     offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
