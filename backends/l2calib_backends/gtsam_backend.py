@@ -27,11 +27,10 @@ from __future__ import annotations
 
 import torch
 
-from l2calib.errors import BackendError
-from l2calib.interfaces import CandidateTrajectories
 from l2calib.recipe import ImuInput
 from l2calib_backends.gtsam_graph import GraphSettings
 from l2calib_backends.gtsam_lio import GtsamRunSettings, run_segment_gtsam
+from l2calib_backends.iekf import RunResult
 from l2calib_backends.iekf_backend import IekfBackend
 from l2calib_backends.propagation import ImuNoise
 from l2calib_backends.registration import RegistrationSettings
@@ -50,7 +49,6 @@ class GtsamBackend(IekfBackend):
 
     def __init__(self, config: GtsamOptions, imu: ImuInput | None = None, **_: object) -> None:
         self.config = config
-        imu = imu or ImuInput()
         c = config
         self.settings = GtsamRunSettings(
             registration=RegistrationSettings(
@@ -60,23 +58,12 @@ class GtsamBackend(IekfBackend):
                 min_correspondences=c.min_correspondences,
             ),
             graph=GraphSettings(
-                init_sigmas={
-                    "rot": c.init_sigma_rot_rad,
-                    "pos": c.init_sigma_pos_m,
-                    "vel": c.init_sigma_vel_m_s,
-                    "bg": c.init_sigma_gyro_bias_rad_s,
-                    "ba": c.init_sigma_accel_bias_m_s2,
-                },
+                init_sigmas=c.init_sigmas(),
                 relinearize_threshold=c.relinearize_threshold,
                 extra_iterations=c.extra_iterations,
                 huber_k=c.pose_huber_k,
             ),
-            noise=ImuNoise(
-                imu.gyro_noise_density,
-                imu.accel_noise_density,
-                imu.gyro_bias_random_walk,
-                imu.accel_bias_random_walk,
-            ),
+            noise=ImuNoise.from_recipe(imu),
             max_skipped_scans=c.max_skipped_scans,
             max_speed_m_s=c.max_speed_m_s,
             map_voxel_m=c.map_voxel_m,
@@ -90,39 +77,6 @@ class GtsamBackend(IekfBackend):
         if c.threads:
             torch.set_num_threads(c.threads)
 
-    def evaluate(
-        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
-    ) -> list[CandidateTrajectories]:
-        """Runs all candidates on every prepared segment (see :class:`OdometryBackend`)."""
-        if not self._segments:
-            raise BackendError("evaluate() called before prepare()", fix="call prepare() first")
-        T = torch.as_tensor(T_imu_lidar, dtype=torch.float64)
-        if T.ndim != 3 or T.shape[1:] != (4, 4):
-            raise BackendError(
-                f"T_imu_lidar must be [K, 4, 4], got {tuple(T.shape)}",
-                fix="stack the K candidate extrinsics into one [K, 4, 4] float64 tensor",
-            )
-        K = T.shape[0]
-        off = (
-            torch.zeros(K, dtype=torch.float64)
-            if time_offset_s is None
-            else torch.as_tensor(time_offset_s, dtype=torch.float64).reshape(K)
-        )
-        outputs = []
-        with torch.no_grad():
-            for seg, motion, starts, seeds in zip(
-                self._segments, self._motions, self._starts, self._seeds, strict=True
-            ):
-                res = run_segment_gtsam(
-                    seg, motion, starts, T, off, self.settings, self._map, seeds
-                )
-                outputs.append(
-                    CandidateTrajectories(
-                        segment=seg.name,
-                        stamps_ns=seg.end_stamps_ns[1:],
-                        T_world_lidar=res.T_world_lidar,
-                        valid=res.valid,
-                        status=res.status,
-                    )
-                )
-        return outputs
+    def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
+        """One prepared segment for all candidates, with the GTSAM loop."""
+        return run_segment_gtsam(seg, motion, starts, T, off, self.settings, self._map, seeds)

@@ -12,11 +12,12 @@ from l2calib.errors import BackendError
 from l2calib.interfaces import CandidateTrajectories, OdometryBackend, ReferenceTrajectory
 from l2calib.recipe import ImuInput
 from l2calib.trajectory import Trajectory
-from l2calib_backends.iekf import RunSettings, run_segment, window_starts
+from l2calib_backends.iekf import RunResult, RunSettings, run_segment
 from l2calib_backends.initialise import ReferenceMotion, reference_motion
 from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
 from l2calib_backends.prepare import PreparedSegment, ScanTensors, prepare_segment
 from l2calib_backends.propagation import ImuNoise
+from l2calib_backends.scan_loop import window_starts
 from l2calib_backends.specs import IekfOptions
 from l2calib_backends.update import UpdateSettings
 
@@ -98,13 +99,7 @@ class IekfBackend(OdometryBackend):
 
     def __init__(self, config: IekfOptions, imu: ImuInput | None = None, **_: object) -> None:
         self.config = config
-        imu = imu or ImuInput()
-        noise = ImuNoise(
-            imu.gyro_noise_density,
-            imu.accel_noise_density,
-            imu.gyro_bias_random_walk,
-            imu.accel_bias_random_walk,
-        )
+        noise = ImuNoise.from_recipe(imu)
         c = config
         self.settings = RunSettings(
             update=UpdateSettings(
@@ -113,14 +108,7 @@ class IekfBackend(OdometryBackend):
                 min_correspondences=c.min_correspondences,
             ),
             noise=noise,
-            init_sigmas={
-                "rot": c.init_sigma_rot_rad,
-                "pos": c.init_sigma_pos_m,
-                "vel": c.init_sigma_vel_m_s,
-                "bg": c.init_sigma_gyro_bias_rad_s,
-                "ba": c.init_sigma_accel_bias_m_s2,
-                "grav": c.init_sigma_gravity_m_s2,
-            },
+            init_sigmas=c.init_sigmas(),
             max_skipped_scans=c.max_skipped_scans,
             max_speed_m_s=c.max_speed_m_s,
             map_voxel_m=c.map_voxel_m,
@@ -185,7 +173,10 @@ class IekfBackend(OdometryBackend):
             raise BackendError("evaluate() called before prepare()", fix="call prepare() first")
         T = torch.as_tensor(T_imu_lidar, dtype=torch.float64)
         if T.ndim != 3 or T.shape[1:] != (4, 4):
-            raise BackendError(f"T_imu_lidar must be [K, 4, 4], got {tuple(T.shape)}")
+            raise BackendError(
+                f"T_imu_lidar must be [K, 4, 4], got {tuple(T.shape)}",
+                fix="stack the K candidate extrinsics into one [K, 4, 4] float64 tensor",
+            )
         K = T.shape[0]
         off = (
             torch.zeros(K, dtype=torch.float64)
@@ -197,7 +188,7 @@ class IekfBackend(OdometryBackend):
             for seg, motion, starts, seeds in zip(
                 self._segments, self._motions, self._starts, self._seeds, strict=True
             ):
-                res = run_segment(seg, motion, starts, T, off, self.settings, self._map, seeds)
+                res = self._run_segment(seg, motion, starts, T, off, seeds)
                 outputs.append(
                     CandidateTrajectories(
                         segment=seg.name,
@@ -208,3 +199,7 @@ class IekfBackend(OdometryBackend):
                     )
                 )
         return outputs
+
+    def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
+        """One prepared segment for all candidates (the GTSAM backend overrides this)."""
+        return run_segment(seg, motion, starts, T, off, self.settings, self._map, seeds)

@@ -14,6 +14,7 @@ import torch
 from torch import Tensor
 
 from l2calib import geometry as geo
+from l2calib.recipe import ImuInput
 from l2calib_backends.state import BA, BG, DIM, GRAV, POS, TH, VEL, FilterState
 
 
@@ -25,6 +26,17 @@ class ImuNoise:
     accel: float
     gyro_bias: float
     accel_bias: float
+
+    @classmethod
+    def from_recipe(cls, imu: ImuInput | None) -> ImuNoise:
+        """The densities of a recipe's ``data.imu`` (its defaults if ``None``)."""
+        imu = imu or ImuInput()
+        return cls(
+            imu.gyro_noise_density,
+            imu.accel_noise_density,
+            imu.gyro_bias_random_walk,
+            imu.accel_bias_random_walk,
+        )
 
 
 @dataclass(frozen=True)

@@ -9,15 +9,16 @@ from pydantic import BaseModel, ConfigDict, Field
 from l2calib.plugins import PluginSpec
 
 
-class IekfOptions(BaseModel):
-    """Options of the batched FAST-LIO2-style IEKF backend."""
+class LioOptions(BaseModel):
+    """Options shared by the LiDAR-inertial backends (``iekf``, ``gtsam``)."""
 
     model_config = ConfigDict(extra="forbid")
 
     map_mode: Literal["shared-map", "odometry"] = Field(
         "shared-map",
         description="shared-map: one map built once from the reference trajectory, queried by "
-        "all candidates; odometry: each candidate builds its own map as FAST-LIO does",
+        "all candidates; odometry: each candidate builds its own map from its estimates, as "
+        "FAST-LIO does",
     )
     window_scans: int = Field(
         10,
@@ -26,15 +27,12 @@ class IekfOptions(BaseModel):
         "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO",
     )
     map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
-    scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of update points (m)")
-    points_per_scan: int = Field(250, ge=10, description="update points kept per scan")
+    scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")
     map_points_per_scan: int = Field(1500, ge=10, description="points inserted per scan (odometry)")
     min_range_m: float = Field(1.0, ge=0)
     max_range_m: float = Field(100.0, gt=0)
-    max_iterations: int = Field(3, ge=1, le=10, description="iterated-update steps per scan")
     point_sigma_m: float = Field(0.05, gt=0, description="point-to-plane noise (m)")
     plane_thickness_m: float = Field(0.05, gt=0, description="thickest voxel accepted as plane")
-    min_correspondences: int = Field(20, ge=3)
     max_skipped_scans: int = Field(
         3, ge=1, description="scans without update before a candidate counts as lost"
     )
@@ -46,9 +44,31 @@ class IekfOptions(BaseModel):
     init_sigma_vel_m_s: float = Field(0.2, gt=0)
     init_sigma_gyro_bias_rad_s: float = Field(0.01, gt=0)
     init_sigma_accel_bias_m_s2: float = Field(0.1, gt=0)
-    init_sigma_gravity_m_s2: float = Field(0.1, gt=0)
     threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
     seed: int = 0
+
+    def init_sigmas(self) -> dict[str, float]:
+        """Prior standard deviations of each window's start state, by state block."""
+        return {
+            "rot": self.init_sigma_rot_rad,
+            "pos": self.init_sigma_pos_m,
+            "vel": self.init_sigma_vel_m_s,
+            "bg": self.init_sigma_gyro_bias_rad_s,
+            "ba": self.init_sigma_accel_bias_m_s2,
+        }
+
+
+class IekfOptions(LioOptions):
+    """Options of the batched FAST-LIO2-style IEKF backend."""
+
+    points_per_scan: int = Field(250, ge=10, description="update points kept per scan")
+    max_iterations: int = Field(3, ge=1, le=10, description="iterated-update steps per scan")
+    min_correspondences: int = Field(20, ge=3)
+    init_sigma_gravity_m_s2: float = Field(0.1, gt=0)
+
+    def init_sigmas(self) -> dict[str, float]:
+        """Prior standard deviations of the start state, gravity included."""
+        return dict(super().init_sigmas(), grav=self.init_sigma_gravity_m_s2)
 
 
 def _make_iekf(config: IekfOptions, **context: Any) -> Any:
@@ -66,49 +86,18 @@ IEKF = PluginSpec(
 )
 
 
-class GtsamOptions(BaseModel):
+class GtsamOptions(LioOptions):
     """Options of the GTSAM IMU-preintegration LIO backend (iSAM2 graph per candidate)."""
 
-    model_config = ConfigDict(extra="forbid")
-
-    map_mode: Literal["shared-map", "odometry"] = Field(
-        "shared-map",
-        description="shared-map: one map built once from the reference trajectory, queried by "
-        "all candidates; odometry: each candidate builds its own map from its estimates",
-    )
-    window_scans: int = Field(
-        10,
-        ge=0,
-        description="re-anchor the graphs on the reference every this many scans (windows run "
-        "in parallel as extra graphs); 0: one continuous graph per segment",
-    )
-    map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
-    scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")
     points_per_scan: int = Field(400, ge=10, description="registered points kept per scan")
-    map_points_per_scan: int = Field(1500, ge=10, description="points inserted per scan (odometry)")
-    min_range_m: float = Field(1.0, ge=0)
-    max_range_m: float = Field(100.0, gt=0)
     max_iterations: int = Field(4, ge=1, le=10, description="Gauss-Newton steps of a registration")
-    point_sigma_m: float = Field(0.05, gt=0, description="point-to-plane noise (m)")
     registration_info_scale: float = Field(
         1.0,
         gt=0,
         le=1,
         description="scales the registration's information HᵀWH (< 1 inflates its covariance)",
     )
-    plane_thickness_m: float = Field(0.05, gt=0, description="thickest voxel accepted as plane")
     min_correspondences: int = Field(20, ge=6)
-    max_skipped_scans: int = Field(
-        3, ge=1, description="scans without registration before a candidate counts as lost"
-    )
-    max_speed_m_s: float = Field(
-        1000.0, gt=0, description="faster than this counts as divergence (the graph stops)"
-    )
-    init_sigma_rot_rad: float = Field(0.02, gt=0)
-    init_sigma_pos_m: float = Field(0.02, gt=0)
-    init_sigma_vel_m_s: float = Field(0.2, gt=0)
-    init_sigma_gyro_bias_rad_s: float = Field(0.01, gt=0)
-    init_sigma_accel_bias_m_s2: float = Field(0.1, gt=0)
     relinearize_threshold: float = Field(0.05, gt=0, description="iSAM2 relinearisation threshold")
     extra_iterations: int = Field(0, ge=0, le=5, description="extra iSAM2 updates per scan")
     pose_huber_k: float = Field(
@@ -119,8 +108,6 @@ class GtsamOptions(BaseModel):
         description="report each window's final smoothed poses instead of the estimate of each "
         "scan when it arrived (filtered, as the IEKF and the paper's LIO)",
     )
-    threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
-    seed: int = 0
 
 
 def _make_gtsam(config: GtsamOptions, **context: Any) -> Any:
