@@ -56,7 +56,7 @@ def cases(quick: bool) -> list[Case]:
     # reference and one row shows the KISS-ICP path as it is today.
     gt = "reference.name=gt"
     hh = ["selection.budget_s=15", gt]
-    uav = ["selection.window_s=10", "selection.budget_s=20", "backend.options.window_scans=20", gt]
+    uav = ["selection.window_s=10", "selection.budget_s=20", gt]
     ugv = ["selection.window_s=10", "selection.budget_s=20", gt]
     return [
         Case("handheld", "handheld", [0], overrides=hh, target=(2.0, 0.5)),

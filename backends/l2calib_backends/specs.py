@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
 from l2calib.plugins import PluginSpec
+
+AUTO_WINDOW_SCANS = 10  # window_scans "auto" on well-excited data
 
 
 class LioOptions(BaseModel):
@@ -20,11 +22,15 @@ class LioOptions(BaseModel):
         "all candidates; odometry: each candidate builds its own map from its estimates, as "
         "FAST-LIO does",
     )
-    window_scans: int = Field(
-        10,
-        ge=0,
+    window_scans: Annotated[int, Field(ge=0)] | Literal["auto"] = Field(
+        "auto",
         description="re-anchor the filters on the reference every this many scans (windows run "
-        "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO",
+        "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO; "
+        f"auto: 0 on weakly excited data (mean gyro norm below auto_window_max_rate_rad_s), "
+        f"else {AUTO_WINDOW_SCANS}",
+    )
+    auto_window_max_rate_rad_s: float = Field(
+        0.5, gt=0, description="window_scans auto: below this mean |ω| (rad/s), one run"
     )
     map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
     scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")

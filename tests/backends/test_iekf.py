@@ -6,7 +6,7 @@ import torch
 
 from l2calib import geometry as geo
 from l2calib.errors import NotImplementedPluginError
-from l2calib.interfaces import CandidateStatus
+from l2calib.interfaces import CandidateStatus, ReferenceTrajectory
 from l2calib.plugins import get_plugin
 from l2calib.reward import trajectory_reward
 from l2calib_backends.propagation import ImuNoise, ImuTensors, propagate
@@ -120,3 +120,28 @@ def test_vio_placeholder_fails_loudly():
     assert "PLACEHOLDER" in spec.description
     with pytest.raises(NotImplementedPluginError, match="placeholder"):
         spec.build({})
+
+
+@pytest.mark.parametrize(("rate", "expected"), [(2.0, 10), (0.15, 0)])
+def test_auto_window_follows_rotation_rate(rate, expected):
+    from types import SimpleNamespace
+
+    from l2calib_backends.iekf_backend import resolve_window_scans
+    from l2calib_backends.specs import IekfOptions
+
+    gyro = torch.zeros(400, 3, dtype=torch.float64)
+    gyro[:, 2] = rate
+    segments = [SimpleNamespace(imu=SimpleNamespace(gyro=gyro))]
+    assert resolve_window_scans(IekfOptions(), segments) == expected
+    assert resolve_window_scans(IekfOptions(window_scans=7), segments) == 7
+
+
+def test_auto_window_on_simulated_motion(sim):
+    reference = {"handheld": 10, "uav": 0}
+    for profile, expected in reference.items():
+        run = sim(profile, duration_s=4.0)
+        seq = run.sequence()
+        seg = seq.segment(seq.start_ns + 1_000_000_000, seq.end_ns)
+        backend = _backend(threads=1)
+        backend.prepare([seg], [ReferenceTrajectory(seg.name, run.gt_lidar)])
+        assert backend.window_scans == expected, profile
