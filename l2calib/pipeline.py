@@ -25,7 +25,6 @@ from l2calib.recipe import Recipe
 log = logging.getLogger("l2calib")
 
 
-
 @dataclass
 class PreparedData:
     """Everything the training needs, computed once."""
@@ -110,22 +109,31 @@ def undetermined_axes(
     return out
 
 
-def _score_batch(
-    recipe: Recipe, env, data: PreparedData, T_imu_lidar: torch.Tensor, time_offset_s: float | None
-) -> torch.Tensor:
-    """Rewards ``[N]`` of ``N`` extrinsics (one batched backend call in this process)."""
-    from l2calib.env import CalibrationEnv
-    from l2calib.train.envs import make_env
+class _Scorer:
+    """Rewards ``[N]`` of ``N`` extrinsics in this process, one batched backend call each.
 
-    offsets = None
-    if time_offset_s is not None:
-        offsets = torch.full((T_imu_lidar.shape[0],), float(time_offset_s), dtype=torch.float64)
-    if not isinstance(env, CalibrationEnv):  # worker processes: score here instead
-        env = make_env(
-            recipe.model_dump(mode="json"), data.segments, data.references, T_imu_lidar.shape[0]
-        )
-    breakdown, _ = env.score_candidates(T_imu_lidar, offsets)
-    return breakdown.reward.detach().to(torch.float64)
+    Uses the training env when it is in this process; with worker processes, builds one local
+    env on first use (the same recipe, segments and references) and reuses it.
+    """
+
+    def __init__(self, recipe: Recipe, env, data: PreparedData, time_offset_s: float | None):
+        from l2calib.env import CalibrationEnv
+
+        self.recipe, self.data, self.offset = recipe, data, time_offset_s
+        self.env = env if isinstance(env, CalibrationEnv) else None
+
+    def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
+        from l2calib.train.envs import make_env
+
+        n = T_imu_lidar.shape[0]
+        if self.env is None:
+            recipe, data = self.recipe, self.data
+            self.env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, n)
+        offsets = None
+        if self.offset is not None:
+            offsets = torch.full((n,), float(self.offset), dtype=torch.float64)
+        breakdown, _ = self.env.score_candidates(T_imu_lidar, offsets)
+        return breakdown.reward.detach().to(torch.float64)
 
 
 def train_policy(
@@ -139,6 +147,7 @@ def train_policy(
     """Builds env + policy from the recipe, runs PPO; returns the calibration and the outcome."""
     from l2calib import sensitivity
     from l2calib.plugins import get_plugin
+    from l2calib.refine import refine
     from l2calib.train.checkpoint import recipe_fingerprint
     from l2calib.train.envs import make_training_env
     from l2calib.train.ppo import PpoTrainer
@@ -162,9 +171,22 @@ def train_policy(
     mode = policy.mode()
     T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
     offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
+    score = _Scorer(recipe, env, data, offset)
+    refined = None
+    if cfg.refine_rounds > 0:
+        say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
+        refined = refine(
+            score, T_mode, cfg.refine_rounds, cfg.refine_rot_step_deg, cfg.refine_trans_step_m
+        )
+        T_mode = torch.from_numpy(refined.T_imu_lidar)
+        log.info(
+            "refine: reward %.5f -> %.5f, moved %.3f deg / %.2f cm (%d evaluations)",
+            refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
+            refined.evaluations,
+        )  # fmt: skip
     say("probing the reward around the result (per-axis resolution)")
     candidates = sensitivity.probe(T_mode)
-    rewards = _score_batch(recipe, env, data, candidates, offset)
+    rewards = score(candidates)
     if not getattr(env, "is_closed", False):  # the collector may have closed worker envs
         env.close()
     resolution = sensitivity.resolve(rewards)
@@ -178,10 +200,24 @@ def train_policy(
         translation_sigma_m=trans_sigma,
         time_offset_sigma_s=unc.get("time_offset_sigma_s"),
         final_reward=resolution.reward,
-        evaluations=outcome.evaluations + candidates.shape[0],
+        evaluations=outcome.evaluations
+        + candidates.shape[0]
+        + (refined.evaluations if refined else 0),
         iterations=len(outcome.history),
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
         resolution=resolution,
         undetermined=undetermined_axes(resolution, data.selection),
+        extra={"refine": _refine_summary(refined)} if refined else {},
     ), outcome
+
+
+def _refine_summary(refined: Any) -> dict[str, Any]:
+    """What the post-PPO refinement did (``calibration.yaml`` → ``refine``)."""
+    return {
+        "policy_mode_reward": round(refined.start_reward, 6),
+        "refined_reward": round(refined.reward, 6),
+        "moved_deg": round(refined.moved_deg, 4),
+        "moved_m": round(refined.moved_m, 5),
+        "evaluations": int(refined.evaluations),
+    }

@@ -142,6 +142,14 @@ class TrainConfig(StrictModel):
     converged_step_m: float = Field(0.005, gt=0, description="largest mode move in the window")
     converged_rotation_sigma_deg: float = Field(0.5, gt=0, description="largest rotation sigma")
     converged_translation_sigma_m: float = Field(0.05, gt=0, description="largest trans. sigma")
+    refine_rounds: int = Field(
+        6,
+        ge=0,
+        description="after PPO, climb the reward from the policy's mode with this many batched "
+        "probe rounds (13 evaluations each; l2calib.refine); 0: off",
+    )
+    refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
+    refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
 
 
 def _reference() -> PluginChoice:

@@ -27,7 +27,7 @@ __all__ = ["ROTATION_STEPS_DEG", "TRANSLATION_STEPS_M", "AxisResolution", "probe
 AXES = ("x", "y", "z")
 #: Probe ladders: fine enough to resolve a good calibration, wide enough to show a flat axis.
 ROTATION_STEPS_DEG = (0.25, 1.0, 4.0)
-TRANSLATION_STEPS_M = (0.005, 0.02, 0.08)
+TRANSLATION_STEPS_M = (0.005, 0.02, 0.08, 0.16)
 
 
 @dataclass

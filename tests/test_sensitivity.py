@@ -47,9 +47,9 @@ def test_probe_order_and_size_match_resolve():
     assert torch.allclose(
         geo.so3_log(D[:3, :3]), torch.tensor([math.radians(0.25), 0, 0], dtype=F64)
     )
-    # last: -8 cm along LiDAR z
+    # last: the widest translation step, negative, along LiDAR z
     D = geo.transform_inverse(T) @ cands[-1]
-    assert torch.allclose(D[:3, 3], torch.tensor([0, 0, -0.08], dtype=F64))
+    assert torch.allclose(D[:3, 3], torch.tensor([0, 0, -TRANSLATION_STEPS_M[-1]], dtype=F64))
 
 
 def test_resolution_of_a_peaked_reward_is_finite_and_ordered():

@@ -25,6 +25,8 @@ Design choices:
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import torch
 
 from l2calib.recipe import ImuInput
@@ -58,7 +60,7 @@ class GtsamBackend(IekfBackend):
                 min_correspondences=c.min_correspondences,
             ),
             graph=GraphSettings(
-                init_sigmas=c.init_sigmas(),
+                init_sigmas=c.init_sigmas(),  # 'auto' resolved in prepare()
                 relinearize_threshold=c.relinearize_threshold,
                 extra_iterations=c.extra_iterations,
                 huber_k=c.pose_huber_k,
@@ -70,12 +72,21 @@ class GtsamBackend(IekfBackend):
             plane_thickness_m=c.plane_thickness_m,
             smoothed_output=c.smoothed_output,
         )
+        self.init_sigmas = c.init_sigmas()
+        self.window_scans = c.window_scans
         self._segments = []
         self._motions = []
         self._starts = []
         self._map = None
         if c.threads:
             torch.set_num_threads(c.threads)
+
+    def _use_init_sigmas(self, sigmas: dict[str, float]) -> None:
+        """Start-state priors resolved at ``prepare`` (gravity is fixed here, not a state)."""
+        self.init_sigmas = sigmas
+        self.settings = replace(
+            self.settings, graph=replace(self.settings.graph, init_sigmas=sigmas)
+        )
 
     def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
         """One prepared segment for all candidates, with the GTSAM loop."""

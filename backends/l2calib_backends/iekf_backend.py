@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -90,6 +91,12 @@ def _seed_points(
     return ScanTensors(points, zeros, mask, zeros)
 
 
+def mean_rotation_rate(segments: Sequence[PreparedSegment]) -> float:
+    """Mean gyro norm (rad/s) over all IMU samples of the prepared segments."""
+    rates = torch.cat([s.imu.gyro.norm(dim=-1) for s in segments])
+    return float(rates.mean()) if len(rates) else 0.0
+
+
 def resolve_window_scans(options: LioOptions, segments: Sequence[PreparedSegment]) -> int:
     """``window_scans`` to use: the option, or for ``auto`` a choice by rotation rate.
 
@@ -97,19 +104,12 @@ def resolve_window_scans(options: LioOptions, segments: Sequence[PreparedSegment
     learner starting from a uniform rotation needs on well-excited data. Under weak excitation
     (UAV, ground vehicle) they hide the small IMU–LiDAR inconsistencies that grade the lever
     arm, so a continuous run per segment (0) is used when the mean gyro norm over all segments
-    is below ``auto_window_max_rate_rad_s`` (measured in ``docs/backends.md``).
+    is below ``weak_excitation_rate_rad_s`` (measured in ``docs/backends.md``).
     """
     if options.window_scans != "auto":
         return int(options.window_scans)
-    rates = torch.cat([s.imu.gyro.norm(dim=-1) for s in segments])
-    mean_rate = float(rates.mean()) if len(rates) else 0.0
-    window = 0 if mean_rate < options.auto_window_max_rate_rad_s else AUTO_WINDOW_SCANS
-    _log.info(
-        "window_scans auto: mean |ω| %.2f rad/s -> %s",
-        mean_rate,
-        "one continuous run per segment" if window == 0 else f"windows of {window} scans",
-    )
-    return window
+    weak = mean_rotation_rate(segments) < options.weak_excitation_rate_rad_s
+    return 0 if weak else AUTO_WINDOW_SCANS
 
 
 class IekfBackend(OdometryBackend):
@@ -133,12 +133,14 @@ class IekfBackend(OdometryBackend):
                 min_correspondences=c.min_correspondences,
             ),
             noise=noise,
-            init_sigmas=c.init_sigmas(),
+            init_sigmas=c.init_sigmas(),  # 'auto' resolved in prepare()
             max_skipped_scans=c.max_skipped_scans,
             max_speed_m_s=c.max_speed_m_s,
             map_voxel_m=c.map_voxel_m,
             plane_thickness_m=c.plane_thickness_m,
         )
+        self.init_sigmas = c.init_sigmas()
+        self.window_scans = c.window_scans
         self._segments: list[PreparedSegment] = []
         self._motions: list[ReferenceMotion] = []
         self._starts: list[list[int]] = []
@@ -168,7 +170,19 @@ class IekfBackend(OdometryBackend):
             )
             for i, s in enumerate(segments)
         ]
+        rate = mean_rotation_rate(self._segments)
+        weak = rate < c.weak_excitation_rate_rad_s
         self.window_scans = resolve_window_scans(c, self._segments)
+        self._use_init_sigmas(c.init_sigmas(weak))
+        _log.info(
+            "mean |ω| %.2f rad/s (%s): %s, start priors %s",
+            rate,
+            "weakly excited" if weak else "well excited",
+            "one continuous run per segment"
+            if self.window_scans == 0
+            else f"windows of {self.window_scans} scans",
+            self.init_sigmas,
+        )
         self._starts = [window_starts(len(s.measurements), self.window_scans) for s in segments]
         self._seeds = [None] * len(segments)
         if c.map_mode == "odometry":
@@ -190,6 +204,11 @@ class IekfBackend(OdometryBackend):
                 c.min_range_m,
                 c.max_range_m,
             )
+
+    def _use_init_sigmas(self, sigmas: dict[str, float]) -> None:
+        """Start-state priors resolved at :meth:`prepare` (``auto`` depends on the data)."""
+        self.init_sigmas = sigmas
+        self.settings = replace(self.settings, init_sigmas=sigmas)
 
     def evaluate(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None

@@ -177,6 +177,11 @@ def window_starts(num_scans: int, window_scans: int) -> list[int]:
     return list(range(0, num_scans - 1, w))
 
 
+def count_misses(misses: Tensor, updated: Tensor, active: Tensor) -> Tensor:
+    """Consecutive scans without an update ``[B]``: +1 on an active miss, 0 after an update."""
+    return torch.where(updated, 0, torch.where(active, misses + 1, misses))
+
+
 @dataclass(frozen=True)
 class MapSettings:
     """The plane map of the own-map (odometry) mode."""
@@ -222,8 +227,8 @@ def drive(
     from ``seeds.points[w]`` (window ``w``'s first scan placed and deskewed by the reference,
     world frame) and grows with the filter's own estimates.
 
-    A filter that loses track (``max_skipped_scans`` scans without an update) keeps running on
-    its IMU: its drift is what grades it (as in the paper's LIO). Only a step failure, a
+    A filter that loses track (``max_skipped_scans`` consecutive scans without an update) keeps
+    running on its IMU: its drift is what grades it (as in the paper's LIO). Only a step failure, a
     non-finite state or a speed above ``max_speed_m_s`` stops a filter (frozen, finite).
     """
     B, K, N = batch.B, batch.K, batch.N
@@ -263,7 +268,7 @@ def drive(
         mask = upd.mask[scan] & active[:, None]
         res = step(StepInput(prior, q, mask, upd.ranges[scan], query, t0, t1, active, prog.alive))
         prog.corr_sum += torch.where(active, res.num_matches, 0).to(torch.float64)
-        skipped = torch.where(active & ~res.updated, skipped + 1, skipped)
+        skipped = count_misses(skipped, res.updated, active)
         lost = prog.alive & (skipped >= max_skipped_scans) & (prog.status == _OK)
         prog.status = torch.where(lost, _LOST, prog.status)
         new = res.state

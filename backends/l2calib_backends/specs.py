@@ -9,6 +9,15 @@ from pydantic import BaseModel, ConfigDict, Field
 from l2calib.plugins import PluginSpec
 
 AUTO_WINDOW_SCANS = 10  # window_scans "auto" on well-excited data
+# init sigmas "auto" (accel bias, gravity; m/s²): (weakly excited, well excited)
+AUTO_ACCEL_BIAS_SIGMA = (0.01, 0.1)
+AUTO_GRAVITY_SIGMA = (0.01, 0.1)
+Sigma = Annotated[float, Field(gt=0)] | Literal["auto"]
+
+
+def _auto(value: float | str, choices: tuple[float, float], weak: bool) -> float:
+    """A sigma option: the number given, or for ``auto`` ``choices[0 if weak else 1]``."""
+    return float(choices[0] if weak else choices[1]) if value == "auto" else float(value)
 
 
 class LioOptions(BaseModel):
@@ -26,11 +35,14 @@ class LioOptions(BaseModel):
         "auto",
         description="re-anchor the filters on the reference every this many scans (windows run "
         "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO; "
-        f"auto: 0 on weakly excited data (mean gyro norm below auto_window_max_rate_rad_s), "
+        f"auto: 0 on weakly excited data (mean gyro norm below weak_excitation_rate_rad_s), "
         f"else {AUTO_WINDOW_SCANS}",
     )
-    auto_window_max_rate_rad_s: float = Field(
-        0.5, gt=0, description="window_scans auto: below this mean |ω| (rad/s), one run"
+    weak_excitation_rate_rad_s: float = Field(
+        0.5,
+        gt=0,
+        description="the 'auto' settings treat data whose mean |ω| (rad/s) is below this as "
+        "weakly excited",
     )
     map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
     scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")
@@ -49,18 +61,23 @@ class LioOptions(BaseModel):
     init_sigma_pos_m: float = Field(0.02, gt=0)
     init_sigma_vel_m_s: float = Field(0.2, gt=0)
     init_sigma_gyro_bias_rad_s: float = Field(0.01, gt=0)
-    init_sigma_accel_bias_m_s2: float = Field(0.1, gt=0)
+    init_sigma_accel_bias_m_s2: Sigma = Field(
+        "auto",
+        description=f"start-state accel-bias prior (m/s²); auto: {AUTO_ACCEL_BIAS_SIGMA[0]} on "
+        "weakly excited data, where the whole-segment gravity estimate absorbs the bias (the "
+        f"attitude barely changes), else {AUTO_ACCEL_BIAS_SIGMA[1]}",
+    )
     threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
     seed: int = 0
 
-    def init_sigmas(self) -> dict[str, float]:
+    def init_sigmas(self, weak_excitation: bool = False) -> dict[str, float]:
         """Prior standard deviations of each window's start state, by state block."""
         return {
             "rot": self.init_sigma_rot_rad,
             "pos": self.init_sigma_pos_m,
             "vel": self.init_sigma_vel_m_s,
             "bg": self.init_sigma_gyro_bias_rad_s,
-            "ba": self.init_sigma_accel_bias_m_s2,
+            "ba": _auto(self.init_sigma_accel_bias_m_s2, AUTO_ACCEL_BIAS_SIGMA, weak_excitation),
         }
 
 
@@ -70,11 +87,16 @@ class IekfOptions(LioOptions):
     points_per_scan: int = Field(250, ge=10, description="update points kept per scan")
     max_iterations: int = Field(3, ge=1, le=10, description="iterated-update steps per scan")
     min_correspondences: int = Field(20, ge=3)
-    init_sigma_gravity_m_s2: float = Field(0.1, gt=0)
+    init_sigma_gravity_m_s2: Sigma = Field(
+        "auto",
+        description=f"start-state gravity prior (m/s²); auto: {AUTO_GRAVITY_SIGMA[0]} on weakly "
+        f"excited data, else {AUTO_GRAVITY_SIGMA[1]}",
+    )
 
-    def init_sigmas(self) -> dict[str, float]:
+    def init_sigmas(self, weak_excitation: bool = False) -> dict[str, float]:
         """Prior standard deviations of the start state, gravity included."""
-        return dict(super().init_sigmas(), grav=self.init_sigma_gravity_m_s2)
+        grav = _auto(self.init_sigma_gravity_m_s2, AUTO_GRAVITY_SIGMA, weak_excitation)
+        return dict(super().init_sigmas(weak_excitation), grav=grav)
 
 
 def _make_iekf(config: IekfOptions, **context: Any) -> Any:

@@ -10,6 +10,7 @@ from l2calib.interfaces import CandidateStatus, ReferenceTrajectory
 from l2calib.plugins import get_plugin
 from l2calib.reward import trajectory_reward
 from l2calib_backends.propagation import ImuNoise, ImuTensors, propagate
+from l2calib_backends.scan_loop import count_misses
 from l2calib_backends.state import DIM, FilterState
 
 
@@ -86,6 +87,14 @@ def test_odometry_mode_tracks_with_the_true_extrinsic(handheld_run, handheld_seg
     assert float(err.max()) < 0.15, err
 
 
+def test_lost_track_counts_consecutive_misses_only():
+    misses = torch.zeros(3, dtype=torch.int64)
+    active = torch.tensor([True, True, False])
+    for updated in ([False, False, False], [True, False, False], [False, False, False]):
+        misses = count_misses(misses, torch.tensor(updated), active)
+    assert misses.tolist() == [1, 3, 0]  # reset by an update; inactive filters do not count
+
+
 def test_wildly_wrong_extrinsic_is_reported_not_crashed(handheld_run, handheld_segment):
     seg, ref = handheld_segment
     backend = _backend(points_per_scan=150)
@@ -136,12 +145,18 @@ def test_auto_window_follows_rotation_rate(rate, expected):
     assert resolve_window_scans(IekfOptions(window_scans=7), segments) == 7
 
 
-def test_auto_window_on_simulated_motion(sim):
-    reference = {"handheld": 10, "uav": 0}
-    for profile, expected in reference.items():
+def test_auto_settings_on_simulated_motion(sim):
+    # profile -> (window_scans, accel-bias and gravity start sigmas in m/s²)
+    reference = {"handheld": (10, 0.1), "uav": (0, 0.01)}
+    for profile, (window, sigma) in reference.items():
         run = sim(profile, duration_s=4.0)
         seq = run.sequence()
         seg = seq.segment(seq.start_ns + 1_000_000_000, seq.end_ns)
-        backend = _backend(threads=1)
-        backend.prepare([seg], [ReferenceTrajectory(seg.name, run.gt_lidar)])
-        assert backend.window_scans == expected, profile
+        for name in ("iekf", "gtsam"):
+            backend = get_plugin("l2calib.backends", name).build({"threads": 1})
+            backend.prepare([seg], [ReferenceTrajectory(seg.name, run.gt_lidar)])
+            assert backend.window_scans == window, (name, profile)
+            assert backend.init_sigmas["ba"] == sigma, (name, profile)
+            assert backend.init_sigmas.get("grav", sigma) == sigma, (name, profile)
+    explicit = _backend(init_sigma_accel_bias_m_s2=0.3).config.init_sigmas(weak_excitation=True)
+    assert explicit["ba"] == 0.3 and explicit["grav"] == 0.01

@@ -28,6 +28,7 @@ SMOKE = [
     "selection.window_s=3",
     "selection.step_s=1",
     "selection.budget_s=3",
+    "train.refine_rounds=1",
 ]
 
 
@@ -73,8 +74,11 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     )
     assert result.iterations == 2
     n_probe = len(probe(result.T_imu_lidar))  # the per-axis resolution probe after training
-    assert result.evaluations == 2 * 8 + n_probe
     out = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
+    n_refine = out["refine"]["evaluations"]  # the refinement from the policy's mode
+    assert 1 + 12 <= n_refine <= 1 + 13
+    assert result.evaluations == 2 * 8 + n_refine + n_probe
+    assert out["refine"]["refined_reward"] >= out["refine"]["policy_mode_reward"]
     assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
     assert len(out["T_imu_lidar"]) == 4 and "extrinsic_T" in out["fast_lio"]
     assert (tmp_path / "out" / "report.png").stat().st_size > 10_000

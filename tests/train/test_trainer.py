@@ -36,7 +36,11 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     result, outcome = _run(_recipe(), tmp_path)
     assert len(outcome.history) == 3
     assert outcome.evaluations == 3 * 8
-    assert result.evaluations == 3 * 8 + len(probe(result.T_imu_lidar))  # + resolution probe
+    refined = result.extra["refine"]  # the policy's mode, refined on the reward
+    assert refined["refined_reward"] >= refined["policy_mode_reward"]
+    n_refine = refined["evaluations"]
+    assert 1 + 6 * 12 <= n_refine <= 1 + 6 * 13  # default 6 rounds
+    assert result.evaluations == 3 * 8 + n_refine + len(probe(result.T_imu_lidar))  # + probe
     assert len(result.resolution.rotation_deg) == 3
     assert (tmp_path / "checkpoint.pt").is_file()
     assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
