@@ -1,8 +1,10 @@
-"""Simulator realism: KISS-ICP (LiDAR only) on simulated handheld, UAV and UGV sequences.
+"""Simulator realism: LiDAR-only odometry on simulated handheld, UAV and UGV sequences.
 
-Run: ``python -m benchmarks.bench_sim_realism``; prints a table and writes
-``benchmarks/results/bench_sim_realism.json``. If the simulated scans (motion distortion,
-per-point times, geometry) were inconsistent, KISS-ICP could not follow ``gt_lidar``.
+Run: ``python -m benchmarks.bench_sim_realism [--odometry kiss-icp ct-lidar]``; prints a table
+and writes ``benchmarks/results/bench_sim_realism.json`` (rows of the odometries not re-run are
+kept). If the simulated scans (motion distortion, per-point times, geometry) were inconsistent,
+no odometry could follow ``gt_lidar``. Two are run on every case: stock KISS-ICP (the well-known
+peer, constant-velocity deskew) and ``ct-lidar`` (l2calib's continuous-time odometry).
 
 Metrics against ``gt_lidar`` (LiDAR clock, poses interpolated at KISS-ICP's stamps = last point of
 each scan):
@@ -16,6 +18,7 @@ each scan):
 
 from __future__ import annotations
 
+import argparse
 import json
 import os
 import time
@@ -32,6 +35,7 @@ from l2calib.references.kiss_icp_runner import KissIcpOptions, run_kiss_icp
 from l2calib.sim import SimConfig, simulate
 
 RESULTS = Path(__file__).parent / "results" / "bench_sim_realism.json"
+ODOMETRIES = ("kiss-icp", "ct-lidar")
 TRACK_PCT, TRACK_DEG = 2.0, 2.0  # "tracks": APE below 2 % of the path and 2 degrees
 # KISS-ICP's voxel size is max_range / 100: 1 m outdoors, 0.5 m indoors (as a user would set it).
 MAX_RANGE = {"urban": 100.0, "hall": 50.0, "corridor": 50.0, "open-field": 100.0}
@@ -74,7 +78,19 @@ def rpe_per_scan(reference, estimate) -> tuple[float, float]:
     return float(np.linalg.norm(e[:, :3, 3], axis=1).mean()), float(np.degrees(ang).mean())
 
 
-def _case(label, profile, world, lidar, rate, cols, duration, rig) -> dict:
+def run_odometry(name: str, run, world: str):  # noqa: ANN001, ANN201 - SimRun -> Trajectory
+    """The LiDAR trajectory of ``name`` over the whole run."""
+    if name == "kiss-icp":
+        return run_kiss_icp(run.scans, KissIcpOptions(max_range_m=MAX_RANGE[world]))
+    from l2calib.references.ct_lidar_source import run_segment
+    from l2calib.references.options import CtLidarOptions
+
+    return run_segment(
+        list(run.scans), [], CtLidarOptions(max_range_m=MAX_RANGE[world], cache=False), "ct"
+    )
+
+
+def _case(odometry, label, profile, world, lidar, rate, cols, duration, rig) -> dict:
     excitation = 0.5 if "x0.5" in label else 1.0
     cfg = SimConfig.model_validate(
         {
@@ -88,9 +104,8 @@ def _case(label, profile, world, lidar, rate, cols, duration, rig) -> dict:
     )
     run = simulate(cfg)
     t0 = time.perf_counter()
-    kiss = KissIcpOptions(max_range_m=MAX_RANGE[world])
-    traj = run_kiss_icp(run.scans, kiss)
-    t_kiss = time.perf_counter() - t0
+    traj = run_odometry(odometry, run, world)
+    t_odo = time.perf_counter() - t0
     res = ape(run.gt_lidar, traj)
     rot = pose_aligned_rotation_rmse_deg(run.gt_lidar, traj)
     rpe_t, rpe_r = rpe_per_scan(run.gt_lidar, traj)
@@ -98,6 +113,7 @@ def _case(label, profile, world, lidar, rate, cols, duration, rig) -> dict:
     pct = 100.0 * res.rmse_t / max(path, 1e-9)
     return {
         "case": label,
+        "odometry": odometry,
         "profile": profile,
         "world": world,
         "lidar": lidar,
@@ -115,23 +131,30 @@ def _case(label, profile, world, lidar, rate, cols, duration, rig) -> dict:
         "ape_r_rmse_deg_position_aligned": round(res.rmse_r_deg, 3),
         "rpe_t_per_scan_m": round(rpe_t, 4),
         "rpe_r_per_scan_deg": round(rpe_r, 3),
-        "kiss_icp_s": round(t_kiss, 1),
-        "kiss_icp_max_range_m": kiss.max_range_m,
+        "odometry_s": round(t_odo, 1),
+        "max_range_m": MAX_RANGE[world],
         "tracks": bool(pct < TRACK_PCT and rot < TRACK_DEG),
     }
 
 
 def main() -> None:
-    console = Console(width=160)
-    rows = []
-    for case in CASES:
-        rows.append(_case(*case))
-        r = rows[-1]
-        console.print(
-            f"{r['case']}: APE {r['ape_t_rmse_m']} m ({r['ape_t_pct_path']} %), "
-            f"{r['ape_r_rmse_deg']} deg, KISS-ICP {r['kiss_icp_s']} s"
-        )
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--odometry", nargs="*", default=list(ODOMETRIES), choices=ODOMETRIES)
+    args = parser.parse_args()
+    console = Console(width=170)
+    old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {}
+    rows = [r for r in old.get("rows", []) if r.get("odometry") in ODOMETRIES]
+    rows = [r for r in rows if r["odometry"] not in args.odometry]  # re-run ones are replaced
+    for odometry in args.odometry:
+        for case in CASES:
+            rows.append(_case(odometry, *case))
+            r = rows[-1]
+            console.print(
+                f"{odometry} {r['case']}: APE {r['ape_t_rmse_m']} m ({r['ape_t_pct_path']} %), "
+                f"{r['ape_r_rmse_deg']} deg, {r['odometry_s']} s"
+            )
     cols = (
+        "odometry",
         "case",
         "world",
         "lidar",
@@ -142,15 +165,25 @@ def main() -> None:
         "ape_r_rmse_deg",
         "rpe_t_per_scan_m",
         "rpe_r_per_scan_deg",
-        "kiss_icp_s",
+        "odometry_s",
         "tracks",
     )
-    table = Table(title="KISS-ICP on simulated sequences vs gt_lidar")
+    table = Table(title="LiDAR-only odometry on simulated sequences vs gt_lidar")
     for c in cols:
-        table.add_column(c.replace("_", " "), justify="left" if c in cols[:3] else "right")
+        table.add_column(c.replace("_", " "), justify="left" if c in cols[:4] else "right")
     for r in rows:
         table.add_row(*(str(r[c]) for c in cols))
     console.print(table)
+    summary = {
+        odo: {
+            prof: [r["case"] for r in rows if r["odometry"] == odo and r["profile"] == prof
+                   and r["tracks"]]
+            for prof in ("handheld", "uav", "ugv")
+        }
+        for odo in ODOMETRIES
+    }  # fmt: skip
+    for odo, per in summary.items():
+        console.print(f"{odo} tracks: " + "; ".join(f"{p}: {c or 'none'}" for p, c in per.items()))
     RESULTS.parent.mkdir(parents=True, exist_ok=True)
     RESULTS.write_text(
         json.dumps(
@@ -158,6 +191,7 @@ def main() -> None:
                 "benchmark": "bench_sim_realism",
                 "criterion": f"APE t < {TRACK_PCT} % of path, pose-aligned rot < {TRACK_DEG} deg",
                 "kiss_icp_options": KissIcpOptions().model_dump() | {"max_range_m": MAX_RANGE},
+                "tracking_cases": summary,
                 "rows": rows,
                 "machine": {"cpus": os.cpu_count(), "loadavg": os.getloadavg()},
             },

@@ -35,6 +35,7 @@ KNOWN_PLUGINS: dict[tuple[str, str], str] = {
     ("l2calib.backends", "gtsam"): "l2calib-backends",
     ("l2calib.backends", "vio"): "l2calib-backends",
     ("l2calib.references", "kiss-icp"): "l2calib",
+    ("l2calib.references", "ct-lidar"): "l2calib",
     ("l2calib.references", "gt-file"): "l2calib",
     ("l2calib.references", "rtk"): "l2calib",
     ("l2calib.policies", "bingham"): "l2calib-policies",

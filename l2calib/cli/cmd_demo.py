@@ -42,8 +42,10 @@ def demo(
 
     t0 = time.monotonic()
     console = Console()
-    if reference not in ("gt-file", "kiss-icp"):
-        raise ConfigError(f"--reference {reference}: unknown", fix="use gt-file or kiss-icp")
+    if reference not in ("ct-lidar", "gt-file", "kiss-icp"):
+        raise ConfigError(
+            f"--reference {reference}: unknown", fix="use ct-lidar, gt-file or kiss-icp"
+        )
     overrides = [f"train.seed={seed}", *set_]
     load_recipe("simulator", overrides)  # fail on a bad --set before simulating
     out = prepare_out_dir(out, resume=False, force=force)
@@ -63,7 +65,12 @@ def demo(
     sim_dir = out / "simulated"
     files = write_run(run, sim_dir, progress=console.is_terminal)
     console.print(f"[cyan]•[/] wrote {files['bag']} and its ground truth")
-    if reference == "gt-file":
+    if reference != "gt-file":
+        overrides = [f"reference.name={reference}", *overrides]
+        console.print(
+            f"[cyan]•[/] reference: {reference} (LiDAR-only odometry; no ground truth is used)"
+        )
+    else:
         overrides = [
             "reference.name=gt-file",
             f"reference.options.path={files['gt_lidar']}",

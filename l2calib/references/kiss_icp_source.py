@@ -19,27 +19,16 @@ the identity, and runs on different segments are not registered to each other.
 
 from __future__ import annotations
 
-import logging
-from collections.abc import Sequence as Seq
-
 import numpy as np
 import torch
 
 from l2calib import geometry as geo
-from l2calib.data import NS_PER_S, LidarScan, Segment, Sequence
+from l2calib.data import LidarScan
 from l2calib.errors import DataError, ReferenceSourceError
-from l2calib.interfaces import ReferenceSource, ReferenceTrajectory
-from l2calib.references.cache import (
-    ReferenceCache,
-    cache_key,
-    segment_fingerprint,
-    trajectory_arrays,
-    trajectory_from_arrays,
-)
+from l2calib.references.odometry_source import LidarOdometryReference
 from l2calib.references.options import KissIcpReferenceOptions
 from l2calib.trajectory import Trajectory
 
-log = logging.getLogger("l2calib.references")
 NAME = "kiss-icp"
 
 
@@ -100,77 +89,23 @@ def run_segment(
     return extrapolate_start(traj, first_point)
 
 
-class KissIcpReference(ReferenceSource):
+class KissIcpReference(LidarOdometryReference):
     """Reference trajectories from KISS-ICP, cached on disk.
 
     Args:
         options: Settings (KISS-ICP's own plus iterations, warm-up margin and cache).
-        sequences: The sequences the segments were cut from (by ``Segment.sequence`` name), to
-            load warm-up scans; ``None`` runs without warm-up.
+        sequences: The sequences the segments were cut from, for warm-up scans (or ``None``).
         progress: Show a rich progress bar per segment.
     """
 
-    def __init__(
-        self,
-        options: KissIcpReferenceOptions,
-        sequences: Seq[Sequence] | None = None,
-        progress: bool = False,
-        **_: object,
-    ) -> None:
-        self.options = options
-        self.sequences = {s.name: s for s in (sequences or [])}
-        self.progress = progress
-        self.cache = ReferenceCache(options.cache_dir, options.cache)
+    name = NAME
 
-    def _warmup(self, seg: Segment) -> list[LidarScan]:
-        seq = self.sequences.get(seg.sequence)
-        if seq is None or self.options.margin_s <= 0:
-            return []
-        start = seg.start_ns - int(self.options.margin_s * NS_PER_S)
-        first = seg.scans[0].stamp_ns if seg.measurements else seg.start_ns
-        return [m for m in seq.scans.load(start, first - 1) if isinstance(m, LidarScan)]
+    def version(self) -> str:
+        """The installed kiss-icp's version."""
+        return _kiss_version()
 
-    def key(self, seg: Segment, warmup: list[LidarScan]) -> str:
-        """Cache key of one segment's reference."""
-        opts = self.options.model_dump(exclude={"cache", "cache_dir"})
-        return cache_key(
-            {
-                "source": NAME,
-                "kiss_icp": _kiss_version(),
-                "options": opts,
-                "segment": segment_fingerprint(seg.scans, seg.start_ns, seg.end_ns),
-                "warmup": segment_fingerprint(warmup, 0, 0) if warmup else None,
-            }
-        )
-
-    def compute_one(self, seg: Segment) -> ReferenceTrajectory:
-        """The reference of one segment (from the cache when possible)."""
-        scans = seg.scans
-        warmup = self._warmup(seg)
-        world = f"{NAME}:{seg.name}"
-        key = self.key(seg, warmup)
-
-        def compute() -> dict[str, np.ndarray]:
-            traj = run_segment(scans, warmup, self.options, world, self.progress)
-            return trajectory_arrays(traj)
-
-        summary = {"source": NAME, "segment": seg.name, "scans": len(scans), "warmup": len(warmup)}
-        arrays, hit = self.cache.get_or_compute(key, compute, summary)
-        try:
-            traj = trajectory_from_arrays(arrays, "lidar", world)
-        except DataError as exc:  # checksummed, so only a foreign writer gets here
-            log.warning("reference cache entry %s is invalid (%s); recomputing", key, exc)
-            self.cache.delete(key)
-            traj = trajectory_from_arrays(compute(), "lidar", world)
-        log.info(
-            "kiss-icp reference of %s: %d poses (%s, %d warm-up scans)",
-            seg.name,
-            len(traj),
-            "cached" if hit else "computed",
-            len(warmup),
-        )
-        return ReferenceTrajectory(seg.name, traj, "pose", NAME)
-
-    def compute(self, segments: Seq[Segment]) -> list[ReferenceTrajectory]:
-        """One KISS-ICP reference per segment, in order (see module docstring)."""
-        return [self.compute_one(seg) for seg in segments]
+    def run_segment(
+        self, scans: list[LidarScan], warmup: list[LidarScan], world_frame: str
+    ) -> Trajectory:
+        """KISS-ICP over the segment (see :func:`run_segment`)."""
+        return run_segment(scans, warmup, self.options, world_frame, self.progress)

@@ -92,6 +92,65 @@ class KissIcpReferenceOptions(KissIcpOptions, CacheOptions):
     )
 
 
+class CtLidarOptions(CacheOptions):
+    """``reference: {name: ct-lidar, options: ...}``: continuous-time LiDAR-only odometry.
+
+    See :mod:`l2calib.references.ct_odometry`. Defaults suit 16–128-beam spinning LiDARs and
+    Livox scanners at 10–20 Hz, indoors and outdoors.
+    """
+
+    min_range_m: float = Field(0.5, ge=0, description="points nearer than this are dropped (m)")
+    max_range_m: float = Field(100.0, gt=0, description="points farther than this are dropped")
+    scan_voxel_m: float = Field(0.4, gt=0, description="registration sample: 1 point per voxel")
+    max_points: int = Field(3000, ge=100, description="registration points per scan at most")
+    map_voxel_m: float = Field(0.2, gt=0, description="local map: 1 point per voxel (m)")
+    map_radius_m: float = Field(60.0, gt=0, description="map points kept around the LiDAR (m)")
+    neighbours: int = Field(12, ge=5, description="map points per plane fit")
+    max_plane_rms_m: float = Field(0.05, gt=0, description="flatness a plane fit needs (m)")
+    min_spread_ratio: float = Field(
+        0.2, gt=0, lt=1, description="rejects line-like neighbourhoods (2nd / 1st spread)"
+    )
+    max_correspondence_m: float = Field(1.0, gt=0, description="first association gate (m)")
+    robust_scale_start_m: float = Field(0.3, gt=0, description="Geman-McClure scale, first (m)")
+    robust_scale_m: float = Field(0.05, gt=0, description="Geman-McClure scale, last (m)")
+    sigma_point_m: float = Field(0.03, gt=0, description="point-to-plane noise (m)")
+    iterations: int = Field(6, ge=1, description="association rounds per scan")
+    inner_steps: int = Field(2, ge=1, description="Levenberg-Marquardt steps per round")
+    min_planes: int = Field(30, ge=18, description="fewest planes to solve a scan")
+    noise_rot_deg: float = Field(0.5, gt=0, description="process noise of the attitude (deg/√s)")
+    noise_pos_m: float = Field(0.01, gt=0, description="... of the position (m/√s)")
+    noise_rate_rad_s: float = Field(1.0, gt=0, description="... of the body rate (rad/s/√s)")
+    noise_alpha_rad_s2: float = Field(20.0, gt=0, description="... of α (rad/s²/√s)")
+    noise_velocity_m_s: float = Field(0.5, gt=0, description="... of the velocity (m/s/√s)")
+    noise_accel_m_s2: float = Field(15.0, gt=0, description="... of a (m/s²/√s)")
+    initial_rate_rad_s: float = Field(
+        3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"
+    )
+    initial_alpha_rad_s2: float = Field(30.0, gt=0, description="... α (rad/s²)")
+    initial_velocity_m_s: float = Field(2.0, gt=0, description="... velocity (m/s)")
+    initial_accel_m_s2: float = Field(10.0, gt=0, description="... a (m/s²)")
+    bootstrap_rounds: int = Field(
+        4, ge=1, description="iterated deskew rounds of the first two scans (first scan's motion)"
+    )
+    poses_per_scan: int = Field(4, ge=1, description="reference poses written per scan")
+    seed: int = Field(0, description="seed of the point sampling")
+    margin_s: float = Field(
+        1.0,
+        ge=0,
+        description="warm-up: also run on this many seconds of scans before each segment (when "
+        "the pipeline passes the sequences), then keep only the segment's poses",
+    )
+
+    @model_validator(mode="after")
+    def _ranges(self) -> CtLidarOptions:
+        if self.min_range_m >= self.max_range_m:
+            raise ValueError(
+                f"min_range_m ({self.min_range_m}) must be smaller than max_range_m "
+                f"({self.max_range_m})"
+            )
+        return self
+
+
 class TransformSpec(StrictModel):
     """A rigid transform as translation plus roll-pitch-yaw (degrees) or quaternion (xyzw)."""
 
@@ -171,13 +230,17 @@ class RtkOptions(CacheOptions):
     lever_arm_m: tuple[float, float, float] = Field(
         (0.0, 0.0, 0.0), description="antenna phase centre in the LiDAR frame (t_lidar_antenna)"
     )
-    orientation: Literal["kiss-icp", "none"] = Field(
+    orientation: Literal["kiss-icp", "ct-lidar", "none"] = Field(
         "kiss-icp",
         description="LiDAR attitude for the lever arm (and for backends that start from the "
-        "reference): KISS-ICP rotations aligned to the fixes; none: identity (zero lever arm)",
+        "reference): the rotations of a LiDAR-only odometry (kiss-icp or ct-lidar) aligned to "
+        "the fixes; none: identity (zero lever arm)",
     )
     kiss_icp: KissIcpReferenceOptions = Field(
         default_factory=KissIcpReferenceOptions, description="settings of that KISS-ICP run"
+    )
+    ct_lidar: CtLidarOptions = Field(
+        default_factory=CtLidarOptions, description="settings of that ct-lidar run"
     )
     min_status: Literal[0, 1, 2] = Field(
         0, description="lowest NavSatStatus accepted: 0 fix, 1 SBAS, 2 GBAS/RTK"
@@ -197,6 +260,7 @@ class RtkOptions(CacheOptions):
     def _lever(self) -> RtkOptions:
         if self.orientation == "none" and any(abs(v) > 0 for v in self.lever_arm_m):
             raise ValueError(
-                "a non-zero lever_arm_m needs the LiDAR attitude: set orientation to kiss-icp"
+                "a non-zero lever_arm_m needs the LiDAR attitude: set orientation to kiss-icp "
+                "or ct-lidar"
             )
         return self

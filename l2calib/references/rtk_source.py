@@ -7,12 +7,12 @@ covariance, converted exactly to ENU (:mod:`l2calib.references.geodesy`; one ori
 segments) and stamped ``t_lidar = t_fix + time_offset_s``.
 
 The antenna is not at the LiDAR: ``p_lidar = p_antenna - R_world_lidar · t_lidar_antenna`` needs
-the LiDAR attitude, which GNSS does not give. With ``orientation: kiss-icp`` the segment's KISS-ICP
-trajectory (cached) supplies it: KISS-ICP's antenna track is aligned to the fixes (Umeyama,
-weighted by ``1/σ²``) and its rotations, moved into ENU, correct the lever arm (a 1° attitude error
-moves a 0.5 m lever arm by 9 mm) and give backends that start from the reference a usable
-attitude. Positions stay the fixes'. The reference is position-only: the reward drops its rotation
-term.
+the LiDAR attitude, which GNSS does not give. With ``orientation: kiss-icp`` (or ``ct-lidar``) the
+segment's LiDAR-only odometry (cached) supplies it: its antenna track is aligned to the fixes
+(Umeyama, weighted by ``1/σ²``) and its rotations, moved into ENU, correct the lever arm (a 1°
+attitude error moves a 0.5 m lever arm by 9 mm) and give backends that start from the reference a
+usable attitude. Positions stay the fixes'. The reference is position-only: the reward drops its
+rotation term.
 """
 
 from __future__ import annotations
@@ -33,6 +33,7 @@ from l2calib.interfaces import ReferenceSource, ReferenceTrajectory
 from l2calib.io.navsat import NavSatFixes, read_navsat
 from l2calib.recipe import DataConfig
 from l2calib.references.cache import ReferenceCache, cache_key, file_fingerprint
+from l2calib.references.ct_lidar_source import CtLidarReference
 from l2calib.references.geodesy import LocalEnu
 from l2calib.references.kiss_icp_source import KissIcpReference
 from l2calib.references.options import RtkOptions
@@ -73,17 +74,17 @@ class RtkReference(ReferenceSource):
         self.topic = options.topic or (data.rtk_topic if data is not None else None)
         self.fixes = dict(fixes or {})
         self.cache = ReferenceCache(options.cache_dir, options.cache)
-        kiss = options.kiss_icp.model_copy(  # the attitude run follows this source's cache
-            update={
-                "cache_dir": options.kiss_icp.cache_dir or options.cache_dir,
-                "cache": options.kiss_icp.cache and options.cache,
-            }
-        )
-        self.kiss = (
-            KissIcpReference(kiss, sequences, progress)
-            if options.orientation == "kiss-icp"
-            else None
-        )
+        self.attitude = None  # the LiDAR-odometry reference that gives the attitude
+        if options.orientation != "none":
+            odo = options.kiss_icp if options.orientation == "kiss-icp" else options.ct_lidar
+            odo = odo.model_copy(  # the attitude run follows this source's cache
+                update={
+                    "cache_dir": odo.cache_dir or options.cache_dir,
+                    "cache": odo.cache and options.cache,
+                }
+            )
+            make = KissIcpReference if options.orientation == "kiss-icp" else CtLidarReference
+            self.attitude = make(odo, sequences, progress)
         self._enu: LocalEnu | None = None
         if options.origin is not None:
             self._enu = LocalEnu(*options.origin)
@@ -173,7 +174,7 @@ class RtkReference(ReferenceSource):
                 np.median(gaps),
             )
         w = 1.0 / np.square(np.nan_to_num(sigma[use], nan=o.max_sigma_m).clip(1e-3))
-        if self.kiss is None:
+        if self.attitude is None:
             quat = np.tile([0.0, 0.0, 0.0, 1.0], (len(st), 1))
             traj = Trajectory(st, p_ant, quat, "lidar", "enu")
         else:
@@ -183,7 +184,7 @@ class RtkReference(ReferenceSource):
     def _with_attitude(
         self, seg: Segment, st: np.ndarray, p_ant: np.ndarray, w: np.ndarray, where: str
     ) -> Trajectory:
-        kiss = self.kiss.compute_one(seg).trajectory
+        kiss = self.attitude.compute_one(seg).trajectory
         lever = torch.tensor(self.options.lever_arm_m, dtype=torch.float64)
         clamped = np.clip(st, kiss.stamps_ns[0], kiss.stamps_ns[-1])
         uniq, inv = np.unique(clamped, return_inverse=True)

@@ -19,7 +19,12 @@ from __future__ import annotations
 from typing import Any
 
 from l2calib.plugins import PluginSpec
-from l2calib.references.options import GtFileOptions, KissIcpReferenceOptions, RtkOptions
+from l2calib.references.options import (
+    CtLidarOptions,
+    GtFileOptions,
+    KissIcpReferenceOptions,
+    RtkOptions,
+)
 
 GROUP = "l2calib.references"
 
@@ -28,6 +33,12 @@ def _make_kiss_icp(config: KissIcpReferenceOptions, **context: Any) -> Any:
     from l2calib.references.kiss_icp_source import KissIcpReference
 
     return KissIcpReference(config, **context)
+
+
+def _make_ct_lidar(config: CtLidarOptions, **context: Any) -> Any:
+    from l2calib.references.ct_lidar_source import CtLidarReference
+
+    return CtLidarReference(config, **context)
 
 
 def _make_gt_file(config: GtFileOptions, **context: Any) -> Any:
@@ -48,6 +59,14 @@ KISS_ICP = PluginSpec(
     config=KissIcpReferenceOptions,
     factory=_make_kiss_icp,
     description="LiDAR-only odometry (KISS-ICP, iterated deskew) per segment; full pose; cached",
+)
+CT_LIDAR = PluginSpec(
+    name="ct-lidar",
+    group=GROUP,
+    config=CtLidarOptions,
+    factory=_make_ct_lidar,
+    description="LiDAR-only continuous-time odometry per segment (aggressive motion); full "
+    "pose; cached",
 )
 GT_FILE = PluginSpec(
     name="gt-file",

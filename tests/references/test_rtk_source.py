@@ -66,10 +66,14 @@ def test_enu_matches_an_independent_ecef_computation(rng):
     assert abs(n[0, 1] - 30.87) < 0.01
 
 
-def test_lever_arm_is_removed_with_kiss_icp_attitude(drive, cache_dir, caplog):
+@pytest.mark.parametrize("orientation", ["kiss-icp", "ct-lidar"])
+def test_lever_arm_is_removed_with_the_lidar_attitude(drive, cache_dir, caplog, orientation):
     fixes = {drive.sequence.name: synth_fixes(drive.run, LEVER, sigma_m=0.005)}
     with caplog.at_level(logging.WARNING, logger="l2calib.references"):
-        src = build(cache_dir, fixes, sequences=[drive.sequence], lever_arm_m=LEVER)
+        src = build(
+            cache_dir, fixes, sequences=[drive.sequence], lever_arm_m=LEVER,
+            orientation=orientation,
+        )  # fmt: skip
         ref = src.compute([drive.segment])[0]
     assert "position-only" in caplog.text
     tr = ref.trajectory

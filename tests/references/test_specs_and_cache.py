@@ -1,4 +1,4 @@
-"""Entry points of the three references, recipe options, and the cache's location and format."""
+"""Entry points of the built-in references, recipe options, and the cache's location and format."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from l2calib.recipe import Recipe, filled_plugin_options, recipe_from_dict
 from l2calib.references.cache import ReferenceCache, cache_key, default_root
 
 
-def test_the_three_references_are_registered():
+def test_the_built_in_references_are_registered():
     found = discover("l2calib.references")
-    for name in ("kiss-icp", "gt-file", "rtk"):
+    for name in ("kiss-icp", "ct-lidar", "gt-file", "rtk"):
         spec, dist = found[name]
         assert spec.group == "l2calib.references" and dist == "l2calib"
 
