@@ -27,6 +27,7 @@ from rich.console import Console
 from rich.table import Table
 
 from l2calib import geometry as geo
+from l2calib.errors import L2CalibError
 from l2calib.recipe import load_recipe
 from l2calib.sim import SimConfig, simulate
 
@@ -208,18 +209,27 @@ def main() -> None:
     torch.set_default_dtype(torch.float64)
     console = Console()
     rows: list[dict[str, Any]] = []
+    failed: list[dict[str, Any]] = []
     existing = json.loads(args.out.read_text()) if args.out.is_file() and args.only else {}
 
     def save() -> list[dict[str, Any]]:
         """Writes JSON + markdown now (after every row: a long run keeps what it measured)."""
-        names = {r["case"] for r in rows}
+        names = {r["case"] for r in rows + failed}
         kept = [r for r in existing.get("rows", []) if r["case"] not in names]  # not re-run
         out_rows = kept + rows
+        out_failed = [r for r in existing.get("failed", []) if r["case"] not in names] + failed
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(
-            json.dumps({"rows": out_rows, "machine": os.uname().nodename}, indent=1)
+            json.dumps(
+                {"rows": out_rows, "failed": out_failed, "machine": os.uname().nodename}, indent=1
+            )
         )
-        args.out.with_suffix(".md").write_text(_markdown(out_rows))
+        md = _markdown(out_rows)
+        if out_failed:
+            md += "\nFailed (no result):\n\n" + "".join(
+                f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in out_failed
+            )
+        args.out.with_suffix(".md").write_text(md)
         return out_rows
 
     for case in cases(args.quick):
@@ -227,7 +237,13 @@ def main() -> None:
             continue
         for seed in range(args.seeds):
             console.print(f"[cyan]•[/] {case.name} (train seed {seed})")
-            rows.append(run_case(case, seed))
+            try:
+                rows.append(run_case(case, seed))
+            except L2CalibError as exc:  # a failed row is a result too: keep it, say why
+                console.print(f"[red]{case.name}: {exc}[/]")
+                failed.append({"case": case.name, "train_seed": seed, "error": str(exc)})
+                save()
+                continue
             console.print(_table(rows[-1:]))
             save()
     console.print(_table(save()))

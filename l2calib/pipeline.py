@@ -63,12 +63,23 @@ def select_segments(recipe: Recipe, sequences: Sequence[DataSequence]):
     return selection.segments(sequences), selection
 
 
-def compute_references(recipe: Recipe, segments: Sequence[Segment]) -> list[ReferenceTrajectory]:
-    """Runs the recipe's reference plugin on the segments."""
+def compute_references(
+    recipe: Recipe,
+    segments: Sequence[Segment],
+    sequences: Sequence[DataSequence] | None = None,
+) -> list[ReferenceTrajectory]:
+    """Runs the recipe's reference plugin on the segments.
+
+    Args:
+        recipe: The resolved recipe (``reference`` and ``data`` sections are used).
+        segments: Selected segments.
+        sequences: The sequences the segments were cut from: LiDAR-odometry references start
+            ``margin_s`` before each segment on their scans (warm-up).
+    """
     from l2calib.plugins import get_plugin
 
     source = get_plugin("l2calib.references", recipe.reference.name).build(
-        recipe.reference.options, data=recipe.data
+        recipe.reference.options, data=recipe.data, sequences=sequences
     )
     refs = source.compute(list(segments))
     if any(r.constrains == "position" for r in refs):
@@ -90,7 +101,7 @@ def prepare_data(
     say("selecting informative data")
     segments, selection = select_segments(recipe, sequences)
     say(f"computing the {recipe.reference.name} reference")
-    references = compute_references(recipe, segments)
+    references = compute_references(recipe, segments, sequences)
     return PreparedData(list(sequences), segments, references, selection)
 
 

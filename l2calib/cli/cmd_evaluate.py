@@ -29,7 +29,7 @@ def evaluate_extrinsics(recipe, sequences, extrinsics: dict[str, tuple]):
     from l2calib.trajectory import Trajectory
 
     segments = [seq.segment() for seq in sequences]
-    references = compute_references(recipe, segments)
+    references = compute_references(recipe, segments, sequences)
     options = {**recipe.backend.options, "map_mode": "odometry", "window_scans": 0}
     backend = get_plugin("l2calib.backends", recipe.backend.name).build(
         options, imu=recipe.data.imu

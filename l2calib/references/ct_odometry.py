@@ -268,11 +268,34 @@ class CtLidarOdometry:
                         break
                 if lam > 1e4 or np.linalg.norm(dx[:6]) < 1e-6:
                     break
+        self.last_inlier_ratio = 0.0
+        if len(s.points) and "r" in locals():  # share of the points on a plane at the end
+            self.last_inlier_ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)
         P = np.linalg.inv(H)
         return m, 0.5 * (P + P.T)
 
     def _insert(self, s: _Scan, m: ScanMotion) -> None:
         self.map.insert(m.transform(s.map_points, s.map_tau))
+
+    def _check_tracking(self, k: int, stamps: np.ndarray, m: ScanMotion) -> None:
+        """Raises when the odometry has lost track, instead of returning a wrong reference.
+
+        Lost: fewer than ``lost_inlier_ratio`` of the registration points on a map plane for
+        ``lost_scans`` scans in a row, or a body rate / speed no rig reaches.
+        """
+        o = self.o
+        self._poor = self._poor + 1 if self.last_inlier_ratio < o.lost_inlier_ratio else 0
+        absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
+        if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
+            when = (stamps[k] - stamps[0]) / NS_PER_S
+            raise ReferenceSourceError(
+                f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
+                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, body rate "
+                f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
+                fix="ct-lidar is experimental and known to lose track with 16-beam LiDARs on "
+                "some motions (docs/references.md); use reference.name=kiss-icp, a gt-file or "
+                "rtk reference for this data",
+            )
 
     def _forward(
         self,
@@ -286,11 +309,13 @@ class CtLidarOdometry:
         """Inserts scan 0 with ``start`` and solves scans ``1..last`` (inclusive)."""
         self.map = self._new_map()
         self._insert(prepared[0], start)
+        self._poor = 0
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
             pred, P_pred = self._predict(motions[-1], P, dt)
             m, P = self._solve(prepared[k], pred, P_pred)
+            self._check_tracking(k, stamps, m)
             motions.append(m)
             self._insert(prepared[k], m)
             self.map.crop(m.t_b)

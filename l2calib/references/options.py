@@ -132,6 +132,12 @@ class CtLidarOptions(CacheOptions):
     bootstrap_rounds: int = Field(
         4, ge=1, description="iterated deskew rounds of the first two scans (first scan's motion)"
     )
+    lost_inlier_ratio: float = Field(
+        0.25, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
+    )
+    lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
+    max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
+    max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
     poses_per_scan: int = Field(4, ge=1, description="reference poses written per scan")
     seed: int = Field(0, description="seed of the point sampling")
     margin_s: float = Field(

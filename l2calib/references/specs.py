@@ -65,8 +65,8 @@ CT_LIDAR = PluginSpec(
     group=GROUP,
     config=CtLidarOptions,
     factory=_make_ct_lidar,
-    description="LiDAR-only continuous-time odometry per segment (aggressive motion); full "
-    "pose; cached",
+    description="EXPERIMENTAL LiDAR-only continuous-time odometry per segment (aggressive "
+    "motion; can lose track on 16-beam data, then errors); full pose; cached",
 )
 GT_FILE = PluginSpec(
     name="gt-file",

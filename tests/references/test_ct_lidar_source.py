@@ -143,3 +143,37 @@ def test_too_short_segment_and_bad_options_are_clear_errors(swing, tmp_path):
         recipe_from_dict(
             {"reference": {"name": "ct-lidar", "options": {"min_range_m": 5, "max_range_m": 2}}}
         )
+
+
+def test_the_pipeline_hands_the_sequences_over_for_warm_up(swing, monkeypatch):
+    from l2calib.pipeline import compute_references
+
+    seen = {}
+
+    class Seen(Exception):
+        pass
+
+    def capture(scans, warmup, *_, **__):
+        seen["warmup"] = warmup
+        raise Seen
+
+    monkeypatch.setattr(ct_lidar_source, "run_segment", capture)
+    recipe = recipe_from_dict({"reference": {"name": "ct-lidar", "options": {"cache": False}}})
+    with pytest.raises(Seen):
+        compute_references(recipe, [swing.segment], [swing.sequence])
+    first = swing.segment.scans[0].stamp_ns
+    assert len(seen["warmup"]) == 10  # 1 s of 10 Hz scans before the segment
+    assert all(s.stamp_ns < first for s in seen["warmup"])
+
+
+def test_lost_track_is_a_clear_error_not_a_wrong_reference(swing, tmp_path):
+    """Scans that no longer match the map (here: points scattered at random) must raise."""
+    seg = swing.segment
+    rng = np.random.default_rng(0)
+    scans = list(seg.scans[:4])
+    for s in seg.scans[4:10]:
+        pts = rng.uniform(-20, 20, size=s.points_lidar.shape).astype(np.float32)
+        scans.append(type(s)(s.stamp_ns, pts, s.offset_s))
+    bad = Segment(seg.name, seg.sequence, seg.start_ns, seg.end_ns, seg.imu, scans)
+    with pytest.raises(ReferenceSourceError, match="lost track .* s into the run.*kiss-icp"):
+        build(tmp_path, cache=False).compute([bad])
