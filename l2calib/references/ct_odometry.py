@@ -281,10 +281,12 @@ class CtLidarOdometry:
         """Raises when the odometry has lost track, instead of returning a wrong reference.
 
         Lost: fewer than ``lost_inlier_ratio`` of the registration points on a map plane for
-        ``lost_scans`` scans in a row, or a body rate / speed no rig reaches.
+        ``lost_scans`` scans in a row (after the first ``lost_grace_scans``, while the map is
+        young and much of each scan new), or a body rate / speed no rig reaches.
         """
         o = self.o
-        self._poor = self._poor + 1 if self.last_inlier_ratio < o.lost_inlier_ratio else 0
+        poor = self.last_inlier_ratio < o.lost_inlier_ratio and k > o.lost_grace_scans
+        self._poor = self._poor + 1 if poor else 0
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
         if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
             when = (stamps[k] - stamps[0]) / NS_PER_S

@@ -136,6 +136,7 @@ class CtLidarOptions(CacheOptions):
         0.25, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
     )
     lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
+    lost_grace_scans: int = Field(10, ge=0, description="no poor-scan verdict on the first ones")
     max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
     max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
     poses_per_scan: int = Field(4, ge=1, description="reference poses written per scan")
