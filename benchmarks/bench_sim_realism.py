@@ -31,6 +31,7 @@ from rich.table import Table
 from scipy.spatial.transform import Rotation
 
 from l2calib.alignment import ape, associate, umeyama
+from l2calib.errors import L2CalibError
 from l2calib.references.kiss_icp_runner import KissIcpOptions, run_kiss_icp
 from l2calib.sim import SimConfig, simulate
 
@@ -104,7 +105,16 @@ def _case(odometry, label, profile, world, lidar, rate, cols, duration, rig) -> 
     )
     run = simulate(cfg)
     t0 = time.perf_counter()
-    traj = run_odometry(odometry, run, world)
+    try:
+        traj = run_odometry(odometry, run, world)
+    except L2CalibError as exc:  # lost track: a result, not a crash
+        keys = ("ape_t_rmse_m", "ape_t_pct_path", "ape_r_rmse_deg", "rpe_t_per_scan_m",
+                "rpe_r_per_scan_deg")  # fmt: skip
+        return {"case": label, "odometry": odometry, "profile": profile, "world": world,
+                "lidar": lidar, "mean_abs_omega_rad_s": round(run.stats["mean_abs_omega_rad_s"], 3),
+                "path_m": round(run.stats["path_length_m"], 1), **dict.fromkeys(keys),
+                "odometry_s": round(time.perf_counter() - t0, 1), "tracks": False,
+                "error": str(exc)}  # fmt: skip
     t_odo = time.perf_counter() - t0
     res = ape(run.gt_lidar, traj)
     rot = pose_aligned_rotation_rmse_deg(run.gt_lidar, traj)
