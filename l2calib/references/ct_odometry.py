@@ -212,12 +212,12 @@ class CtLidarOdometry:
 
     def _jacobian(self, m: ScanMotion, p: np.ndarray, tau: np.ndarray, n: np.ndarray) -> np.ndarray:
         """``[N, 18]`` derivative of the point-to-plane distances (update order of retract)."""
-        R, _ = m.poses(tau)
         phi = m.rotvec(tau)
-        q = Rotation.from_rotvec(phi).apply(p)
+        E = Rotation.from_rotvec(phi).as_matrix()  # R(τ) = R_b E, once for both blocks
+        n_b = n @ m.R_b  # R_bᵀ n per row
         J = np.empty((len(p), 18))
-        J[:, 0:3] = np.cross(q, n @ m.R_b)
-        g = np.cross(p, np.einsum("nji,nj->ni", R, n))
+        J[:, 0:3] = np.cross(np.einsum("nij,nj->ni", E, p), n_b)
+        g = np.cross(p, np.einsum("nji,nj->ni", E, n_b))  # p × R(τ)ᵀ n
         Jphi = np.einsum("ni,nij->nj", g, right_jacobian(phi))
         J[:, 6:9] = tau[:, None] * Jphi
         J[:, 9:12] = (tau**2)[:, None] * Jphi
@@ -236,6 +236,7 @@ class CtLidarOdometry:
         info_p = 1.0 / o.sigma_point_m**2
         scales = np.geomspace(o.robust_scale_start_m, o.robust_scale_m, o.iterations)
         H = info_prior
+        ratio = 0.0
         for it in range(o.iterations):
             world = m.transform(s.points, s.tau)
             gate = max(o.max_correspondence_m * (0.5**it), 4 * o.map_voxel_m)
@@ -271,9 +272,8 @@ class CtLidarOdometry:
                         break
                 if lam > 1e4 or np.linalg.norm(dx[:6]) < 1e-6:
                     break
-        self.last_inlier_ratio = 0.0
-        if len(s.points) and "r" in locals():  # share of the points on a plane at the end
-            self.last_inlier_ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)
+            ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)  # points on a plane
+        self.last_inlier_ratio = ratio
         P = np.linalg.inv(H)
         return m, 0.5 * (P + P.T)
 
