@@ -33,6 +33,10 @@ from l2calib.sim import SimConfig, simulate
 
 RESULTS = Path(__file__).parent / "results"
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
+OS1_16_RIG = {"lidar": {"model": "ouster-os1-16"}, "imu": {"model": "vn100"}, "rig": RIG}
+OS1_16_NAME = "ouster-os1-16 + vn100"  # rows measured before the rig was recorded
+# The paper's hand-held rig (Livox MID-360 + MTi-300, sensors 0.75 m apart), with its recipe.
+PAPER_RIG = {"rig": {"preset": "paper-handheld"}}
 
 
 @dataclass
@@ -45,6 +49,8 @@ class Case:
     duration_s: float = 40.0
     overrides: list[str] = field(default_factory=list)
     target: tuple[float, float] | None = None  # (cm, deg)
+    recipe: str = "simulator"
+    sim: dict[str, Any] = field(default_factory=lambda: dict(OS1_16_RIG))  # SimConfig fields
 
 
 def cases(quick: bool) -> list[Case]:
@@ -75,6 +81,18 @@ def cases(quick: bool) -> list[Case]:
         Case("ugv all ct-lidar", "ugv", [21, 22, 23], overrides=[*ugv[:-1], ct]),
         Case("uav seq 1", "uav", [11], overrides=uav),
         Case("ugv seq 1", "ugv", [21], overrides=ugv),
+        *(
+            Case(
+                f"handheld MID-360 {ref}",
+                "handheld",
+                [0],
+                overrides=[f"reference.name={ref}"],
+                target=(2.0, 0.5),
+                recipe="livox-mid360-mti300",
+                sim=PAPER_RIG,
+            )
+            for ref in ("gt", "ct-lidar", "kiss-icp")
+        ),  # fmt: skip
     ]
 
 
@@ -96,16 +114,14 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
                     "duration_s": case.duration_s,
                     "seed": s,
                     "motion": {"profile": case.profile},
-                    "lidar": {"model": "ouster-os1-16"},
-                    "imu": {"model": "vn100"},
-                    "rig": RIG,
+                    **case.sim,
                 }
             )
         )
         for s in case.seeds
     ]
     overrides = [o for o in case.overrides if o != "reference.name=gt"]
-    recipe = load_recipe("simulator", [*overrides, f"train.seed={train_seed}"])
+    recipe = load_recipe(case.recipe, [*overrides, f"train.seed={train_seed}"])
     sequences = [r.sequence() for r in runs]
     t0 = time.monotonic()
     if "reference.name=gt" in case.overrides:  # the simulator's exact LiDAR trajectory
@@ -129,6 +145,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "case": case.name,
         "train_seed": train_seed,
         "sequences": len(runs),
+        "rig": f"{runs[0].lidar_spec.name} + {runs[0].imu_spec.name}",
         "reference": "gt (simulated LiDAR trajectory)"
         if "reference.name=gt" in case.overrides
         else recipe.reference.name,
@@ -148,7 +165,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
 
 
 def _table(rows: list[dict[str, Any]]) -> Table:
-    t = Table(title="calibration from no initial guess (simulated, OS1-16 + VN100)")
+    t = Table(title="calibration from no initial guess (simulated rigs)")
     for col in (
         "case",
         "seed",
@@ -184,13 +201,14 @@ def _table(rows: list[dict[str, Any]]) -> Table:
 
 
 def _markdown(rows: list[dict[str, Any]]) -> str:
-    cols = "case | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
+    cols = "case | rig | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
     lines = [f"| {cols} |", "|" + "---|" * len(cols.split("|"))]
-    for r in rows:
+    for r in sorted(rows, key=lambda r: (r["case"], r["train_seed"])):
         dt = " / ".join(f"{v:.2f}" for v in r["dt_cm"])
         dr = " / ".join(f"{v:.3f}" for v in r["dr_deg"])
         lines.append(
-            f"| {r['case']} ({r.get('reference', '')}) | {r['train_seed']} | {r['data_s']} | "
+            f"| {r['case']} ({r.get('reference', '')}) | {r.get('rig', OS1_16_NAME)} | "
+            f"{r['train_seed']} | {r['data_s']} | "
             f"{dt} | {dr} | "
             f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
             f"{r['evaluations']} |"
@@ -203,21 +221,29 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true")
     parser.add_argument("--only", nargs="*", default=None, help="case names to run")
-    parser.add_argument("--seeds", type=int, default=1, help="training seeds per case")
+    parser.add_argument(
+        "--seeds", type=int, nargs="+", default=[0], help="training seeds per case (e.g. 1 2)"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS / "calibration.json")
     args = parser.parse_args()
     torch.set_default_dtype(torch.float64)
     console = Console()
     rows: list[dict[str, Any]] = []
     failed: list[dict[str, Any]] = []
-    existing = json.loads(args.out.read_text()) if args.out.is_file() and args.only else {}
+
+    def key(r: dict[str, Any]) -> tuple[str, int]:
+        return r["case"], r["train_seed"]
 
     def save() -> list[dict[str, Any]]:
-        """Writes JSON + markdown now (after every row: a long run keeps what it measured)."""
-        names = {r["case"] for r in rows + failed}
-        kept = [r for r in existing.get("rows", []) if r["case"] not in names]  # not re-run
-        out_rows = kept + rows
-        out_failed = [r for r in existing.get("failed", []) if r["case"] not in names] + failed
+        """Writes JSON + markdown now (after every row: a long run keeps what it measured).
+
+        Rows of other (case, seed) pairs already in the file are kept (re-read at each save, so
+        benchmarks running side by side on different cases do not drop each other's rows).
+        """
+        existing = json.loads(args.out.read_text()) if args.out.is_file() and args.only else {}
+        done = {key(r) for r in rows + failed}
+        out_rows = [r for r in existing.get("rows", []) if key(r) not in done] + rows
+        out_failed = [r for r in existing.get("failed", []) if key(r) not in done] + failed
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(
             json.dumps(
@@ -235,7 +261,7 @@ def main() -> None:
     for case in cases(args.quick):
         if args.only and case.name not in args.only:
             continue
-        for seed in range(args.seeds):
+        for seed in args.seeds:
             console.print(f"[cyan]•[/] {case.name} (train seed {seed})")
             try:
                 rows.append(run_case(case, seed))

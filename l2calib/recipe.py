@@ -7,13 +7,16 @@ fail with the dotted field path. ``l2calib recipe dump`` prints a complete defau
 
 from __future__ import annotations
 
+import logging
 from pathlib import Path
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from l2calib.errors import ConfigError, PluginError
+
+log = logging.getLogger(__name__)
 
 
 class StrictModel(BaseModel):
@@ -135,7 +138,11 @@ class TrainConfig(StrictModel):
     clip_epsilon: float = Field(0.2, gt=0)
     entropy_coef: float = Field(1e-3, ge=0)
     max_grad_norm: float = Field(1.0, gt=0)
-    workers: int = Field(1, ge=1, description="processes that run the odometry")
+    workers: Annotated[int, Field(ge=1)] | Literal["auto"] = Field(
+        "auto",
+        description="processes that run the odometry (same result for any count); auto: the "
+        "largest divisor of candidates_per_iteration not above the CPUs this process may use",
+    )
     checkpoint_every: int = Field(10, ge=1)
     convergence_window: int = Field(15, ge=2, description="iterations the mode must stay put")
     converged_step_deg: float = Field(0.1, gt=0, description="largest mode move in the window")
@@ -179,6 +186,7 @@ PLUGIN_SECTIONS = {
     "backend": "l2calib.backends",
     "policy": "l2calib.policies",
 }
+_NAME_KEYS = {f"{section}.name" for section in PLUGIN_SECTIONS}
 
 
 # --------------------------------------------------------------------------- errors
@@ -198,29 +206,53 @@ def _format_validation(exc: ValidationError, source: str, prefix: str = "") -> C
 
 # --------------------------------------------------------------------------- overrides
 def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any]:
-    """Applies ``a.b=c`` overrides to a nested dict; values are parsed as YAML scalars/lists."""
+    """Applies ``a.b=c`` overrides to a nested dict; values are parsed as YAML scalars/lists.
+
+    An override that switches a plugin (``reference.name=ct-lidar`` on a kiss-icp recipe) drops
+    the file's ``options`` of that section, written for the other plugin, with a logged notice;
+    ``<section>.options.*`` overrides (in any order) then apply to the new plugin.
+    """
+    names = [o for o in overrides if o.partition("=")[0].strip() in _NAME_KEYS]
+    for item in names:
+        section = item.partition("=")[0].strip().split(".")[0]
+        before = data.get(section)
+        old_name = before.get("name") if isinstance(before, dict) else None
+        new_name = _set(data, item)
+        if old_name not in (None, new_name) and "options" in data[section]:
+            dropped = data[section].pop("options")
+            log.info(
+                "%s.name=%s replaces %s: the recipe's %s.options (%s) are not used",
+                section, new_name, old_name, section, ", ".join(map(str, dropped or {})),
+            )  # fmt: skip
     for item in overrides:
-        key, sep, raw = item.partition("=")
-        if not sep or not key.strip():
-            raise ConfigError(
-                f"override {item!r} is not of the form key=value",
-                fix="write e.g. --set train.seed=3",
-            )
-        try:
-            value = yaml.safe_load(raw) if raw.strip() else ""
-        except yaml.YAMLError:
-            value = raw
-        node = data
-        parts = key.strip().split(".")
-        for part in parts[:-1]:
-            child = node.get(part)
-            if child is None:
-                child = node[part] = {}
-            if not isinstance(child, dict):
-                raise ConfigError(f"override {item!r}: {part!r} is not a section")
-            node = child
-        node[parts[-1]] = value
+        if item not in names:
+            _set(data, item)
     return data
+
+
+def _set(data: dict[str, Any], item: str) -> Any:
+    """Applies one ``a.b=c`` override in place; returns the parsed value."""
+    key, sep, raw = item.partition("=")
+    if not sep or not key.strip():
+        raise ConfigError(
+            f"override {item!r} is not of the form key=value",
+            fix="write e.g. --set train.seed=3",
+        )
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else ""
+    except yaml.YAMLError:
+        value = raw
+    node = data
+    parts = key.strip().split(".")
+    for part in parts[:-1]:
+        child = node.get(part)
+        if child is None:
+            child = node[part] = {}
+        if not isinstance(child, dict):
+            raise ConfigError(f"override {item!r}: {part!r} is not a section")
+        node = child
+    node[parts[-1]] = value
+    return value
 
 
 # --------------------------------------------------------------------------- load / dump

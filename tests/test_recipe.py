@@ -99,3 +99,18 @@ def test_dump_is_complete_and_reloads(fake_env, tmp_path):
     assert reloaded == filled
     for key in ("data:", "selection:", "reference:", "backend:", "policy:", "reward:", "train:"):
         assert key in text
+
+
+def test_switching_a_plugin_drops_the_options_written_for_the_old_one(caplog):
+    import logging
+
+    with caplog.at_level(logging.INFO, logger="l2calib.recipe"):
+        recipe = load_recipe(
+            "livox-mid360-mti300",
+            ["reference.options.max_points=2000", "reference.name=ct-lidar"],  # order is free
+        )
+    assert recipe.reference.name == "ct-lidar"
+    assert recipe.reference.options == {"max_points": 2000}  # kiss-icp's voxel_size is gone
+    assert "reference.options (max_range_m, voxel_size) are not used" in caplog.text
+    same = load_recipe("livox-mid360-mti300", ["reference.name=kiss-icp"])
+    assert same.reference.options["voxel_size"] == 0.5  # not a switch: the options stay

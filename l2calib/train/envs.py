@@ -8,6 +8,7 @@ of workers.
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
 from typing import Any
 
@@ -53,13 +54,26 @@ def make_env(
     )
 
 
+def resolve_workers(candidates: int, workers: int | str) -> int:
+    """``train.workers`` as a process count.
+
+    ``"auto"`` is the largest divisor of ``candidates`` not above the CPUs this process may run
+    on; an explicit count is returned as is.
+    """
+    if workers != "auto":
+        return int(workers)
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    return max(d for d in range(1, min(candidates, cpus or 1) + 1) if candidates % d == 0)
+
+
 def make_training_env(
     recipe: Recipe,
     segments: Sequence[Segment],
     references: Sequence[ReferenceTrajectory],
 ):
     """One environment scoring ``train.candidates_per_iteration`` candidates per step."""
-    K, workers = recipe.train.candidates_per_iteration, recipe.train.workers
+    K = recipe.train.candidates_per_iteration
+    workers = resolve_workers(K, recipe.train.workers)
     data = recipe.model_dump(mode="json")
     if workers == 1:
         return make_env(data, segments, references, K)

@@ -78,3 +78,16 @@ def test_resume_refuses_another_recipe(fake_backend_env, tmp_path):
 def test_workers_must_divide_the_batch(fake_backend_env):
     with pytest.raises(ConfigError, match="not divisible by train.workers=3"):
         _run(_recipe(workers=3))
+
+
+def test_auto_workers_divide_the_batch(monkeypatch):
+    from l2calib.train import envs
+
+    monkeypatch.setattr(envs.os, "sched_getaffinity", lambda _pid: set(range(6)))
+    assert envs.resolve_workers(32, "auto") == 4  # 6 CPUs: the largest divisor of 32 below 6
+    assert envs.resolve_workers(30, "auto") == 6
+    assert envs.resolve_workers(7, "auto") == 1
+    assert envs.resolve_workers(32, 3) == 3  # explicit counts are checked by make_training_env
+    monkeypatch.setattr(envs.os, "sched_getaffinity", lambda _pid: {0})
+    assert envs.resolve_workers(32, "auto") == 1
+    assert Recipe.model_validate({}).train.workers == "auto"
