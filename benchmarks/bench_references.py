@@ -241,6 +241,7 @@ def main() -> None:
                 "passed": passed,
                 "rows": rows,
                 "lever_arm_m": LEVER_M,
+                "cases_run": args.only or list(CASES),  # the others' rows: an earlier run's
                 "machine": {
                     "platform": platform.platform(),
                     "cpus": os.cpu_count(),
