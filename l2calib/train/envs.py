@@ -94,4 +94,7 @@ def make_training_env(
             "threads": 1,
         },
     )
-    return ParallelEnv(workers, creator, num_threads=1, mp_start_method="fork")
+    # use_buffers=False: with shared-memory buffers the parent spin-polls for the workers and
+    # takes a third of 2 cores from them while they run the odometry (one step lasts seconds,
+    # so passing the small result tensordicts through the pipes costs nothing).
+    return ParallelEnv(workers, creator, num_threads=1, mp_start_method="fork", use_buffers=False)
