@@ -1,6 +1,7 @@
 """Calibration accuracy and cost on simulated rigs, in the shape of the paper's tables.
 
-Run: ``python -m benchmarks.bench_calibration [--quick] [--only NAME ...] [--seeds N]``.
+Run: ``python -m benchmarks.bench_calibration [--quick] [--only NAME ...] [--seeds N ...]``
+(``--render`` only rewrites the markdown from the JSON).
 Every case simulates its sequences (no bag I/O: the bag path is tested elsewhere), runs the
 full pipeline from no initial guess (selection → reference → PPO) and compares the result with
 the simulator's ground truth. Columns: per-axis |Δt| (cm), per-axis rotation error (Euler angles
@@ -16,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -200,8 +202,23 @@ def _table(rows: list[dict[str, Any]]) -> Table:
     return t
 
 
+_AXIS = re.compile(r"^(rotation about|translation along) LiDAR ([xyz])")
+
+
+def unresolved(row: dict[str, Any]) -> str:
+    """The axes the run's resolution probe could not pin down, as ``rx ty …`` (``-``: none)."""
+    axes = set()
+    for item in row.get("undetermined", []):
+        if m := _AXIS.match(item):
+            axes.add(("r" if m[1].startswith("rotation") else "t") + m[2])
+    return " ".join(sorted(axes)) or "-"
+
+
 def _markdown(rows: list[dict[str, Any]]) -> str:
-    cols = "case | rig | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
+    cols = (
+        "case | rig | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
+        " | unresolved"
+    )
     lines = [f"| {cols} |", "|" + "---|" * len(cols.split("|"))]
     for r in sorted(rows, key=lambda r: (r["case"], r["train_seed"])):
         dt = " / ".join(f"{v:.2f}" for v in r["dt_cm"])
@@ -211,9 +228,49 @@ def _markdown(rows: list[dict[str, Any]]) -> str:
             f"{r['train_seed']} | {r['data_s']} | "
             f"{dt} | {dr} | "
             f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
-            f"{r['evaluations']} |"
+            f"{r['evaluations']} | {unresolved(r)} |"
         )
     return "\n".join(lines) + "\n"
+
+
+def _summary(rows: list[dict[str, Any]], failed: list[dict[str, Any]]) -> str:
+    """Per case over its training seeds: mean and worst errors, how many seeds met the target.
+
+    A failed run (no result) counts as a seed that missed the target.
+    """
+    targets = {c.name: c.target for c in cases(quick=False)}
+    names = sorted({r["case"] for r in rows} | {f["case"] for f in failed})
+    lines = [
+        "\nOver training seeds (mean / worst; wall time is the median, on whatever load the rows"
+        " record):\n",
+        "| case | seeds | failed | t cm | r deg | wall s | target |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for name in names:
+        rs = [r for r in rows if r["case"] == name]
+        n_failed = sum(f["case"] == name for f in failed)
+        t = [r["t_err_cm"] for r in rs]
+        a = [r["r_err_deg"] for r in rs]
+        errors = (
+            f"{np.mean(t):.2f} / {max(t):.2f} | {np.mean(a):.3f} / {max(a):.3f}" if rs else "- | -"
+        )
+        wall = f"{np.median([r['wall_s'] for r in rs]):.0f}" if rs else "-"
+        met, target = "-", targets.get(name)
+        if target:
+            n = sum(r["t_err_cm"] <= target[0] and r["r_err_deg"] <= target[1] for r in rs)
+            met = f"{n}/{len(rs) + n_failed} met ({target[0]:g} cm, {target[1]:g}°)"
+        lines.append(f"| {name} | {len(rs)} | {n_failed} | {errors} | {wall} | {met} |")
+    return "\n".join(lines) + "\n"
+
+
+def _render(results: dict[str, Any]) -> str:
+    """The markdown of a results JSON: rows, the over-seeds summary, failed runs."""
+    md = _markdown(results["rows"]) + _summary(results["rows"], results.get("failed", []))
+    if results.get("failed"):
+        md += "\nFailed (no result):\n\n" + "".join(
+            f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in results["failed"]
+        )
+    return md
 
 
 def main() -> None:
@@ -225,7 +282,13 @@ def main() -> None:
         "--seeds", type=int, nargs="+", default=[0], help="training seeds per case (e.g. 1 2)"
     )
     parser.add_argument("--out", type=Path, default=RESULTS / "calibration.json")
+    parser.add_argument(
+        "--render", action="store_true", help="only rewrite the markdown from the JSON (no runs)"
+    )
     args = parser.parse_args()
+    if args.render:
+        args.out.with_suffix(".md").write_text(_render(json.loads(args.out.read_text())))
+        return
     torch.set_default_dtype(torch.float64)
     console = Console()
     rows: list[dict[str, Any]] = []
@@ -250,12 +313,7 @@ def main() -> None:
                 {"rows": out_rows, "failed": out_failed, "machine": os.uname().nodename}, indent=1
             )
         )
-        md = _markdown(out_rows)
-        if out_failed:
-            md += "\nFailed (no result):\n\n" + "".join(
-                f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in out_failed
-            )
-        args.out.with_suffix(".md").write_text(md)
+        args.out.with_suffix(".md").write_text(_render({"rows": out_rows, "failed": out_failed}))
         return out_rows
 
     for case in cases(args.quick):

@@ -1,0 +1,42 @@
+"""The calibration benchmark's markdown: unresolved-axis labels and the over-seeds summary."""
+
+from benchmarks.bench_calibration import _summary, unresolved
+
+
+def _row(case: str, seed: int, t_cm: float, r_deg: float, undetermined=()) -> dict:
+    return {
+        "case": case,
+        "train_seed": seed,
+        "t_err_cm": t_cm,
+        "r_err_deg": r_deg,
+        "wall_s": 100.0 * (seed + 1),
+        "target": (2.0, 0.5),
+        "undetermined": list(undetermined),
+    }
+
+
+def test_unresolved_names_probe_axes_not_excitation_notes():
+    row = _row(
+        "x",
+        0,
+        1.0,
+        0.1,
+        [
+            "translation along LiDAR z (resolution flat)",
+            "rotation about LiDAR x: a nearby extrinsic scores higher (not converged)",
+            "rotation about LiDAR x (resolution 2.91 deg)",
+            "weakly excited: rotation about y",
+        ],
+    )
+    assert unresolved(row) == "rx tz"
+    assert unresolved(_row("x", 0, 1.0, 0.1)) == "-"
+
+
+def test_summary_counts_failed_seeds_as_missed():
+    rows = [_row("handheld", 0, 0.4, 0.02), _row("handheld", 1, 3.0, 0.02)]
+    failed = [{"case": "handheld", "train_seed": 2, "error": "lost track"}]
+    line = next(s for s in _summary(rows, failed).splitlines() if s.startswith("| handheld |"))
+    cells = [c.strip() for c in line.strip("|").split("|")]
+    assert cells[1:4] == ["2", "1", "1.70 / 3.00"]
+    assert cells[5] == "150"  # median wall time of the two results
+    assert cells[6].startswith("1/3 met")
