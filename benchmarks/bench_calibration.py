@@ -161,6 +161,8 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "iterations": result.iterations,
         "stop": result.stop_reason,
         "undetermined": result.undetermined,
+        "reference_agreement": result.reference_agreement,
+        "warnings": result.warnings,
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
     }
@@ -206,11 +208,16 @@ _AXIS = re.compile(r"^(rotation about|translation along) LiDAR ([xyz])")
 
 
 def unresolved(row: dict[str, Any]) -> str:
-    """The axes the run's resolution probe could not pin down, as ``rx ty …`` (``-``: none)."""
+    """The axes the run's resolution probe could not pin down, as ``rx ty …`` (``-``: none).
+
+    ``(reference!)`` marks a run warned that its reference disagrees with the odometry.
+    """
     axes = set()
     for item in row.get("undetermined", []):
         if m := _AXIS.match(item):
             axes.add(("r" if m[1].startswith("rotation") else "t") + m[2])
+    if row.get("warnings"):  # e.g. the reference disagrees with the odometry at the result
+        axes.add("(reference!)")
     return " ".join(sorted(axes)) or "-"
 
 

@@ -122,6 +122,8 @@ def print_result(console, result, truth=None) -> None:
             + "; ".join(result.undetermined)
             + " — do not trust these components; record motion that excites them."
         )
+    for w in result.warnings:
+        console.print(f"[bold yellow]warning[/]: {w}")
 
 
 def calibrate(

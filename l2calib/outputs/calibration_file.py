@@ -43,6 +43,9 @@ class CalibrationResult:
     stop_reason: str = ""
     undetermined: list[str] = field(default_factory=list)
     resolution: Any | None = None  # l2calib.sensitivity.AxisResolution
+    # mean odometry-vs-reference error at the result: {"translation_m": .., "rotation_deg": ..}
+    reference_agreement: dict[str, float] | None = None
+    warnings: list[str] = field(default_factory=list)  # beyond undetermined axes
     extra: dict[str, Any] = field(default_factory=dict)
 
     @property
@@ -83,6 +86,11 @@ class CalibrationResult:
                 "translation_sigma_m": r(self.translation_sigma_m or [], 5) or None,
                 "time_offset_sigma_s": self.time_offset_sigma_s,
                 "undetermined": list(self.undetermined),
+                # mean error of the odometry (with this extrinsic) against the reference, after
+                # alignment: a few mm with a good reference; much more means the reference or
+                # the odometry is wrong on this data, and so may the extrinsic be
+                "reference_agreement": self.reference_agreement,
+                "warnings": list(self.warnings),
             },
             "training": {
                 "final_reward": None if self.final_reward is None else round(self.final_reward, 6),

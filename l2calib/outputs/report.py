@@ -105,6 +105,9 @@ def write_html(path: Path, result: CalibrationResult, images: list[str]) -> Path
     if result.undetermined:
         items = "".join(f"<li>{html.escape(u)}</li>" for u in result.undetermined)
         warn = f"<h2>Not determined by the data</h2><ul>{items}</ul>"
+    if result.warnings:
+        items = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings)
+        warn += f"<h2>Warnings</h2><ul>{items}</ul>"
     path.write_text(
         "<!doctype html><meta charset=utf-8><title>l2calib report</title>"
         "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"

@@ -42,6 +42,7 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     assert 1 + 6 * 12 <= n_refine <= 1 + 6 * 13  # default 6 rounds
     assert result.evaluations == 3 * 8 + n_refine + len(probe(result.T_imu_lidar))  # + probe
     assert len(result.resolution.rotation_deg) == 3
+    assert result.reference_agreement["translation_m"] >= 0  # odometry vs reference at the result
     assert (tmp_path / "checkpoint.pt").is_file()
     assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
 
