@@ -162,6 +162,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "stop": result.stop_reason,
         "undetermined": result.undetermined,
         "reference_agreement": result.reference_agreement,
+        "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result
         "warnings": result.warnings,
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],

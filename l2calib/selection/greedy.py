@@ -133,7 +133,7 @@ def _logdet(m: np.ndarray) -> np.ndarray:
     return np.sum(np.log(np.clip(ev, 0, None) + EPS), axis=-1)
 
 
-def _weak(moment: np.ndarray, thr: float, kind: str, what: str) -> tuple[list[str], tuple]:
+def _weak(moment: np.ndarray, thr: float, kind: str) -> tuple[list[str], tuple]:
     rms = np.sqrt(np.clip(np.diag(moment), 0, None))
     names = [f"{kind} {AXES[i]}" for i in range(3) if rms[i] < thr]
     ev, vec = np.linalg.eigh(moment)
@@ -143,7 +143,7 @@ def _weak(moment: np.ndarray, thr: float, kind: str, what: str) -> tuple[list[st
     )
     if weakest[0] < thr and np.max(np.abs(weakest[1])) < 0.9:
         d = ", ".join(f"{x:+.2f}" for x in weakest[1])
-        names.append(f"{kind} along [{d}] ({what})")
+        names.append(f"{kind} the direction [{d}] (IMU frame)")
     return names, weakest
 
 
@@ -252,8 +252,8 @@ def _finish(
     notes: list[str],
 ) -> Selection:
     gm, am, _ = _summary(chosen, stats, cfg)
-    weak_g, g_weakest = _weak(gm, cfg.min_gyro_rad_s, "rotation about", "rotation")
-    weak_a, a_weakest = _weak(am, cfg.min_accel_m_s2, "acceleration along", "acceleration")
+    weak_g, g_weakest = _weak(gm, cfg.min_gyro_rad_s, "rotation about")
+    weak_a, a_weakest = _weak(am, cfg.min_accel_m_s2, "acceleration along")
     if not chosen:
         weak_g, weak_a = (
             [f"rotation about {a}" for a in AXES],

@@ -136,3 +136,12 @@ def test_nothing_eligible_reports_every_axis_weak():
     sel = select_windows([still], SelectionConfig())
     assert sel.chosen == [] and "no eligible window" in sel.notes[0]
     assert len(sel.weak_axes) == 6
+
+
+def test_a_weak_diagonal_direction_is_named_readably():
+    from l2calib.selection.greedy import _weak
+
+    d = np.array([0.87, 0.5, 0.0]) / np.linalg.norm([0.87, 0.5, 0.0])
+    moment = np.eye(3) - 0.99 * np.outer(d, d)  # strong on every axis, weak along d
+    names, _ = _weak(moment, 0.5, "rotation about")
+    assert names == ["rotation about the direction [+0.87, +0.50, +0.00] (IMU frame)"]
