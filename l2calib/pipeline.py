@@ -124,7 +124,8 @@ def undetermined_axes(
 #: is named as unreliable. Measured on the simulator at the true extrinsic: 0.3–0.6 cm and
 #: 0.01–0.04° with the true LiDAR trajectory (handheld, uav, ugv; OS1-16 and MID-360) or with
 #: ct-lidar (handheld MID-360); 103 cm and 4.6° with KISS-ICP on a
-#: hand-swung 16-beam LiDAR (whose calibration is then 43 cm off while every axis looks sharp).
+#: hand-swung 16-beam LiDAR (whose calibration is then 43 cm off while every axis looks sharp);
+#: ~50 cm / 50° at the local optimum a ugv single-sequence run stopped in (137 cm / 180° off).
 DISAGREEMENT_LIMITS = {"translation_m": 0.03, "rotation_deg": 0.5}
 
 
@@ -132,8 +133,9 @@ def disagreement_warnings(agreement: dict[str, float | None], sources: Sequence[
     """A warning when the odometry and the reference still disagree at the calibrated extrinsic.
 
     The resolution probe measures how sharp the reward is, not whether its peak is in the right
-    place: a reference that is itself wrong gives a sharp peak at a wrong extrinsic. What does
-    show is a large remaining error between the odometry and the reference.
+    place: a reference that is itself wrong gives a sharp peak at a wrong extrinsic, and a search
+    stuck in a local optimum looks sharp too. Both show as a large remaining error between the
+    odometry and the reference.
 
     Args:
         agreement: mean errors at the result, ``translation_m`` (m) and ``rotation_deg`` (deg;
@@ -152,9 +154,10 @@ def disagreement_warnings(agreement: dict[str, float | None], sources: Sequence[
     return [
         f"even at the calibrated extrinsic the odometry and the reference "
         f"({', '.join(sources)}) disagree by {size} on average (a few mm with a good "
-        "reference): the reference or the odometry is inaccurate on this data, and the "
-        "extrinsic may be off by as much; check the reference (docs/references.md) or use a "
-        "more accurate one"
+        "reference): the reference or the odometry is inaccurate on this data, or the search "
+        "stopped far from the best extrinsic, and the result may be off by as much; check the "
+        "reference (docs/references.md), use a more accurate one, or calibrate over more "
+        "sequences"
     ]
 
 
