@@ -142,12 +142,7 @@ def disagreement_warnings(agreement: dict[str, float | None], sources: Sequence[
             ``None`` when the reference has no orientation).
         sources: the references' source names, for the message.
     """
-    over = {
-        k: v
-        for k, v in agreement.items()
-        if v is not None and not v <= DISAGREEMENT_LIMITS[k]  # NaN counts as over
-    }
-    if not over:
+    if not any(v is not None and v > DISAGREEMENT_LIMITS[k] for k, v in agreement.items()):
         return []
     t, r = agreement["translation_m"], agreement["rotation_deg"]
     size = " / ".join(txt for txt in (_fmt(t, 100, "cm", 1), _fmt(r, 1, "deg", 2)) if txt)

@@ -44,7 +44,7 @@ class CalibrationResult:
     undetermined: list[str] = field(default_factory=list)
     resolution: Any | None = None  # l2calib.sensitivity.AxisResolution
     # mean odometry-vs-reference error at the result: {"translation_m": .., "rotation_deg": ..}
-    reference_agreement: dict[str, float] | None = None
+    reference_agreement: dict[str, float | None] | None = None
     warnings: list[str] = field(default_factory=list)  # beyond undetermined axes
     extra: dict[str, Any] = field(default_factory=dict)
 
@@ -88,7 +88,7 @@ class CalibrationResult:
                 "undetermined": list(self.undetermined),
                 # mean error of the odometry (with this extrinsic) against the reference, after
                 # alignment: a few mm with a good reference; much more means the reference or
-                # the odometry is wrong on this data, and so may the extrinsic be
+                # the odometry is wrong on this data, or the search stopped far from the optimum
                 "reference_agreement": self.reference_agreement,
                 "warnings": list(self.warnings),
             },
