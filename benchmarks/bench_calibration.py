@@ -211,14 +211,15 @@ _AXIS = re.compile(r"^(rotation about|translation along) LiDAR ([xyz])")
 def unresolved(row: dict[str, Any]) -> str:
     """The axes the run's resolution probe could not pin down, as ``rx ty …`` (``-``: none).
 
-    ``(reference!)`` marks a run warned that its reference disagrees with the odometry.
+    ``(disagrees!)`` marks a run warned that the odometry and the reference still disagree at
+    its result (a wrong reference, or a search stopped at a local optimum).
     """
     axes = set()
     for item in row.get("undetermined", []):
         if m := _AXIS.match(item):
             axes.add(("r" if m[1].startswith("rotation") else "t") + m[2])
-    if row.get("warnings"):  # e.g. the reference disagrees with the odometry at the result
-        axes.add("(reference!)")
+    if row.get("warnings"):
+        axes.add("(disagrees!)")
     return " ".join(sorted(axes)) or "-"
 
 

@@ -177,6 +177,7 @@ class _Scorer:
 
         self.recipe, self.data, self.offset = recipe, data, time_offset_s
         self.env = env if isinstance(env, CalibrationEnv) else None
+        self.last = None  # the latest call's RewardBreakdown (reward ingredients per candidate)
 
     def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
         from l2calib.train.envs import make_env
