@@ -164,6 +164,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "reference_agreement": result.reference_agreement,
         "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result
         "warnings": result.warnings,
+        "attempts": result.extra.get("attempts"),  # PPO restarts after a failed agreement check
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
     }
@@ -223,6 +224,12 @@ def unresolved(row: dict[str, Any]) -> str:
     return " ".join(sorted(axes)) or "-"
 
 
+def _runs(row: dict[str, Any]) -> str:
+    """`` (2 runs)`` when PPO restarted after a failed agreement check (evaluations: all runs)."""
+    attempts = row.get("attempts") or []
+    return f" ({len(attempts)} runs)" if len(attempts) > 1 else ""
+
+
 def _markdown(rows: list[dict[str, Any]]) -> str:
     cols = (
         "case | rig | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
@@ -237,7 +244,7 @@ def _markdown(rows: list[dict[str, Any]]) -> str:
             f"{r['train_seed']} | {r['data_s']} | "
             f"{dt} | {dr} | "
             f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
-            f"{r['evaluations']} | {unresolved(r)} |"
+            f"{r['evaluations']}{_runs(r)} | {unresolved(r)} |"
         )
     return "\n".join(lines) + "\n"
 

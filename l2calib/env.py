@@ -21,7 +21,7 @@ from l2calib import geometry as geo
 from l2calib.errors import TrainingError
 from l2calib.interfaces import CandidateStatus, OdometryBackend, ReferenceTrajectory
 from l2calib.recipe import RewardConfig
-from l2calib.reward import aligned_errors, score
+from l2calib.reward import RewardBreakdown, aligned_errors, score
 
 F64 = torch.float64
 INFO_KEYS = ("mean_e_t", "mean_e_r", "status")
@@ -42,6 +42,8 @@ class CalibrationEnv(EnvBase):
         num_candidates: K, the batch size.
         reward: Reward settings (kind, alignment, maximum interpolation gap).
         time_offset: Whether actions carry a LiDAR–IMU time offset (8-dim actions).
+        worker_index: This env's place among the worker processes of a ``ParallelEnv`` (which
+            share of a batch :meth:`score_share` scores).
     """
 
     def __init__(
@@ -51,9 +53,11 @@ class CalibrationEnv(EnvBase):
         num_candidates: int,
         reward: RewardConfig | None = None,
         time_offset: bool = False,
+        worker_index: int = 0,
     ) -> None:
         super().__init__(batch_size=torch.Size([num_candidates]), device="cpu")
         self.backend = backend
+        self.worker_index = worker_index
         self.references = list(references)
         self.reward_config = reward or RewardConfig()
         self.action_dim = 8 if time_offset else 7
@@ -148,6 +152,27 @@ class CalibrationEnv(EnvBase):
         )
         self.evaluations += int(T_imu_lidar.shape[0])
         return breakdown, status
+
+    def score_share(
+        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int
+    ):
+        """Scores this worker's share ``[worker_index::num_workers]`` of a batch.
+
+        A ``ParallelEnv`` sends the same call to every worker; each scores every
+        ``num_workers``-th candidate, so a batch of any size is split evenly over the processes
+        (its ``step`` only takes batches of the fixed training size). See
+        :func:`l2calib.train.envs.score_batch`.
+
+        Returns:
+            As :meth:`score_candidates`, for the share.
+        """
+        share = slice(self.worker_index, None, num_workers)
+        offsets = None if time_offset_s is None else time_offset_s[share]
+        if T_imu_lidar[share].shape[0] == 0:  # fewer candidates than workers: nothing here
+            none = torch.zeros(0, dtype=F64)
+            count = torch.zeros(0, dtype=torch.int64)
+            return RewardBreakdown(none, none.clone(), none.clone(), count), count.clone()
+        return self.score_candidates(T_imu_lidar[share], offsets)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"].to(F64)

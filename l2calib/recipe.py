@@ -156,6 +156,12 @@ class TrainConfig(StrictModel):
         "probe rounds (13 evaluations each; l2calib.refine); 0: off",
     )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
+    restarts: int = Field(
+        1,
+        ge=0,
+        description="fresh PPO runs (other seeds) when the result fails the reference-agreement "
+        "check, e.g. a run stuck in a local optimum; the highest reward is kept; 0: off",
+    )
     refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
 
 

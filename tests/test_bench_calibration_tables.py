@@ -1,6 +1,6 @@
 """The calibration benchmark's markdown: unresolved-axis labels and the over-seeds summary."""
 
-from benchmarks.bench_calibration import _summary, unresolved
+from benchmarks.bench_calibration import _runs, _summary, unresolved
 
 
 def _row(case: str, seed: int, t_cm: float, r_deg: float, undetermined=()) -> dict:
@@ -40,3 +40,10 @@ def test_summary_counts_failed_seeds_as_missed():
     assert cells[1:4] == ["2", "1", "1.70 / 3.00"]
     assert cells[5] == "150"  # median wall time of the two results
     assert cells[6].startswith("1/3 met")
+
+
+def test_restarted_runs_are_marked():
+    row = _row("ugv seq 1", 0, 1.0, 0.1)
+    assert _runs(row) == "" and _runs({**row, "attempts": None}) == ""
+    two = [{"seed": 0, "kept": False}, {"seed": 10007, "kept": True}]
+    assert _runs({**row, "attempts": two}) == " (2 runs)"

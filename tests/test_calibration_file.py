@@ -65,3 +65,8 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     assert "ground truth translation" in res.output and "demo finished" in res.output
     T, _ = read_extrinsic(out / "calibration" / "calibration.yaml")
     assert T.shape == (4, 4) and (out / "simulated" / "gt_lidar.tum").is_file()
+    written = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
+    # 2 iterations end far off: the agreement check fails and PPO starts once more
+    assert written["uncertainty"]["warnings"] and "starts again" in res.output
+    assert [a["kept"] for a in written["attempts"]].count(True) == 1
+    assert (out / "calibration" / "restart-1" / "checkpoint.pt").is_file()

@@ -116,6 +116,13 @@ def print_result(console, result, truth=None) -> None:
         f"final reward {result.final_reward:.4f}, {result.evaluations} odometry evaluations, "
         f"{result.iterations} iterations, {result.wall_time_s:.0f} s ({result.stop_reason})"
     )
+    attempts = result.extra.get("attempts") or []
+    if len(attempts) > 1:
+        runs = ", ".join(
+            f"seed {a['seed']}: {a['final_reward']:.4f}" + (" (kept)" if a["kept"] else "")
+            for a in attempts
+        )
+        console.print(f"{len(attempts)} PPO runs (rewards {runs}); the totals count every run")
     if result.undetermined:
         console.print(
             "[bold yellow]warning[/]: the data could not determine: "

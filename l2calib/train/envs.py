@@ -8,6 +8,7 @@ of workers.
 
 from __future__ import annotations
 
+import functools
 import os
 from collections.abc import Sequence
 from typing import Any
@@ -39,6 +40,7 @@ def make_env(
     references: Sequence[ReferenceTrajectory],
     num_candidates: int,
     threads: int = 0,
+    worker_index: int = 0,
 ):
     """A :class:`~l2calib.env.CalibrationEnv` (top-level so worker processes can build it)."""
     from l2calib.env import CalibrationEnv
@@ -51,6 +53,7 @@ def make_env(
         num_candidates,
         recipe.reward,
         time_offset=recipe.train.estimate_time_offset,
+        worker_index=worker_index,
     )
 
 
@@ -82,19 +85,63 @@ def make_training_env(
             f"train.candidates_per_iteration={K} is not divisible by train.workers={workers}",
             fix="choose a multiple of the number of workers",
         )
-    from torchrl.envs import EnvCreator, ParallelEnv
+    from torchrl.envs import ParallelEnv
 
-    creator = EnvCreator(
+    creator = functools.partial(
         make_env,
-        create_env_kwargs={
-            "recipe_data": data,
-            "segments": list(segments),
-            "references": list(references),
-            "num_candidates": K // workers,
-            "threads": 1,
-        },
+        recipe_data=data,
+        segments=list(segments),
+        references=list(references),
+        num_candidates=K // workers,
+        threads=1,
     )
+    # A plain callable, not TorchRL's EnvCreator: that one also runs a random step in this
+    # process (seconds of odometry on one core) just to learn the specs, and cannot give each
+    # worker its own ``worker_index``.
     # use_buffers=False: with shared-memory buffers the parent spin-polls for the workers and
     # takes a third of 2 cores from them while they run the odometry (one step lasts seconds,
     # so passing the small result tensordicts through the pipes costs nothing).
-    return ParallelEnv(workers, creator, num_threads=1, mp_start_method="fork", use_buffers=False)
+    return ParallelEnv(
+        workers,
+        creator,
+        create_env_kwargs=[{"worker_index": i} for i in range(workers)],
+        num_threads=1,
+        mp_start_method="fork",
+        use_buffers=False,
+    )
+
+
+def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None):
+    """Scores ``N`` candidates of any ``N`` on a training env, spread over its workers.
+
+    After training, the refinement and the resolution probe score batches whose size differs
+    from the training batch; a ``ParallelEnv``'s ``step`` only takes the training size, so every
+    worker is sent the whole batch and scores its share (:meth:`CalibrationEnv.score_share`).
+
+    Args:
+        env: A :class:`~l2calib.env.CalibrationEnv` or an open ``ParallelEnv`` of them.
+        T_imu_lidar: ``[N, 4, 4]`` candidates.
+        time_offset_s: ``[N]`` time offsets (s) or ``None``.
+
+    Returns:
+        The :class:`~l2calib.reward.RewardBreakdown` of the ``N`` candidates, in their order.
+    """
+    from dataclasses import fields
+
+    from l2calib.env import CalibrationEnv
+    from l2calib.reward import RewardBreakdown
+
+    if isinstance(env, CalibrationEnv):
+        return env.score_candidates(T_imu_lidar, time_offset_s)[0]
+    if env.is_closed:  # built but not started yet (workers start on first use)
+        env.start()
+    n = env.num_workers
+    parts = [breakdown for breakdown, _ in env.score_share(T_imu_lidar, time_offset_s, n)]
+    merged = {}
+    for f in fields(RewardBreakdown):
+        first = getattr(parts[0], f.name)
+        full = torch.empty(T_imu_lidar.shape[0], dtype=first.dtype)
+        for i, part in enumerate(parts):
+            full[i::n] = getattr(part, f.name)
+        merged[f.name] = full
+    return RewardBreakdown(**merged)

@@ -254,7 +254,9 @@ class PpoTrainer:
             if progress is not None:
                 progress(record)
         self.checkpoint()
-        self.collector.shutdown()
+        # The env stays open: the refinement and the probe score on its workers; its owner
+        # closes it.
+        self.collector.shutdown(close_env=False)
         return self.outcome
 
     def _record(self, it: int, batch, losses: dict[str, float], wall_s: float) -> IterationRecord:

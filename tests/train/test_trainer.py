@@ -16,7 +16,7 @@ def _data():
 
 
 def _recipe(**train):
-    base = {"candidates_per_iteration": 8, "max_iterations": 3, "seed": 5}
+    base = {"candidates_per_iteration": 8, "max_iterations": 3, "seed": 5, "restarts": 0}
     return Recipe.model_validate(
         {
             "backend": {"name": "fake-lio"},
@@ -49,8 +49,50 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
 
 def test_worker_count_does_not_change_the_result(fake_backend_env):
     r1, _ = _run(_recipe(workers=1))
-    r2, _ = _run(_recipe(workers=2))
+    r2, _ = _run(_recipe(workers=2))  # refinement and probe also run on the 2 workers
     assert torch.allclose(torch.as_tensor(r1.T_imu_lidar), torch.as_tensor(r2.T_imu_lidar))
+    assert r1.final_reward == pytest.approx(r2.final_reward, abs=1e-12)
+    assert r1.reference_agreement == r2.reference_agreement
+
+
+@pytest.mark.parametrize("n", [1, 5, 12])
+def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
+    from l2calib import geometry as geo
+    from l2calib.train.envs import make_training_env, score_batch
+
+    data = _data()
+    recipe = _recipe(workers=2)
+    T = probe(torch.eye(4, dtype=torch.float64))[:n]
+    T[:, :3, :3] = geo.so3_exp(0.1 * torch.randn(n, 3, dtype=torch.float64)) @ T[:, :3, :3]
+    local = make_training_env(_recipe(workers=1), data.segments, data.references)
+    workers = make_training_env(recipe, data.segments, data.references)
+    try:
+        expected = score_batch(local, T)
+        got = score_batch(workers, T)  # split over 2 processes, any n (fewer than workers too)
+    finally:
+        workers.close()
+    assert got.reward.shape == (n,)
+    assert torch.allclose(got.reward, expected.reward)
+    assert torch.allclose(got.mean_e_t, expected.mean_e_t)
+    assert torch.equal(got.num_poses, expected.num_poses)
+
+
+def test_restart_when_the_result_disagrees_keeps_the_best(fake_backend_env, tmp_path):
+    from l2calib.pipeline import RESTART_SEED_STRIDE
+
+    single, _ = _run(_recipe())
+    assert single.warnings  # 3 iterations end far from the truth: the agreement check fails
+    result, outcome = _run(_recipe(restarts=1), tmp_path)
+    first, second = result.extra["attempts"]
+    assert (first["seed"], second["seed"]) == (5, 5 + RESTART_SEED_STRIDE)
+    assert first["final_reward"] == pytest.approx(single.final_reward)  # attempt 1 as before
+    kept = max((first, second), key=lambda a: a["final_reward"])
+    assert kept["kept"] and result.final_reward == pytest.approx(kept["final_reward"])
+    assert result.evaluations > single.evaluations  # every attempt is charged
+    assert len(outcome.history) == 3
+    assert (tmp_path / "restart-1" / "checkpoint.pt").is_file()
+    resumed, _ = _run(_recipe(restarts=1), tmp_path, resume=True)  # both attempts resume
+    assert torch.equal(torch.as_tensor(resumed.T_imu_lidar), torch.as_tensor(result.T_imu_lidar))
 
 
 def test_resume_continues_to_the_same_result(fake_backend_env, tmp_path):
