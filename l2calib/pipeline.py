@@ -173,6 +173,7 @@ def train_policy(
     ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's evaluations,
     iterations and wall time count every attempt.
     """
+    from l2calib.train.checkpoint import CHECKPOINT_NAME
     from l2calib.train.envs import make_training_env
 
     say = stage or (lambda _msg: None)
@@ -183,7 +184,9 @@ def train_policy(
         for k in range(recipe.train.restarts + 1):
             seed = recipe.train.seed + k * RESTART_SEED_STRIDE
             sub = out_dir if out_dir is None or k == 0 else out_dir / f"restart-{k}"
-            attempts.append((*_attempt(recipe, data, env, seed, sub, resume, progress, say), seed))
+            # A restart that had not begun when the run was killed starts afresh on --resume.
+            again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
+            attempts.append((*_attempt(recipe, data, env, seed, sub, again, progress, say), seed))
             result = attempts[-1][0]
             if not result.warnings or k == recipe.train.restarts:
                 break
@@ -244,7 +247,7 @@ def _attempt(
     from l2calib import sensitivity
     from l2calib.plugins import get_plugin
     from l2calib.refine import refine
-    from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
+    from l2calib.train.checkpoint import recipe_fingerprint
     from l2calib.train.ppo import PpoTrainer
 
     cfg = recipe.train.model_copy(update={"seed": seed})
@@ -256,8 +259,8 @@ def _attempt(
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)
-    if resume and (seed == recipe.train.seed or (out_dir / CHECKPOINT_NAME).is_file()):
-        trainer.resume()  # a restart that had not begun when the run was killed starts afresh
+    if resume:
+        trainer.resume()
     say("training")
     outcome = trainer.run(progress)
     mode = policy.mode()

@@ -1,5 +1,7 @@
 from __future__ import annotations
 
+import shutil
+
 import pytest
 import torch
 from fakes import reference, tiny_sequence
@@ -93,6 +95,9 @@ def test_restart_when_the_result_disagrees_keeps_the_best(fake_backend_env, tmp_
     assert (tmp_path / "restart-1" / "checkpoint.pt").is_file()
     resumed, _ = _run(_recipe(restarts=1), tmp_path, resume=True)  # both attempts resume
     assert torch.equal(torch.as_tensor(resumed.T_imu_lidar), torch.as_tensor(result.T_imu_lidar))
+    shutil.rmtree(tmp_path / "restart-1")  # killed before the restart began: it starts afresh
+    again, _ = _run(_recipe(restarts=1), tmp_path, resume=True)
+    assert torch.equal(torch.as_tensor(again.T_imu_lidar), torch.as_tensor(result.T_imu_lidar))
 
 
 def test_resume_continues_to_the_same_result(fake_backend_env, tmp_path):
