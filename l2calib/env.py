@@ -167,12 +167,12 @@ class CalibrationEnv(EnvBase):
             As :meth:`score_candidates`, for the share.
         """
         share = slice(self.worker_index, None, num_workers)
-        offsets = None if time_offset_s is None else time_offset_s[share]
-        if T_imu_lidar[share].shape[0] == 0:  # fewer candidates than workers: nothing here
+        T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
+        if T.shape[0] == 0:  # fewer candidates than workers: nothing here
             none = torch.zeros(0, dtype=F64)
             count = torch.zeros(0, dtype=torch.int64)
             return RewardBreakdown(none, none.clone(), none.clone(), count), count.clone()
-        return self.score_candidates(T_imu_lidar[share], offsets)
+        return self.score_candidates(T, offsets)
 
     def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
         action = tensordict["action"].to(F64)

@@ -126,27 +126,23 @@ def undetermined_axes(
 
 
 class _Scorer:
-    """Rewards ``[N]`` of ``N`` extrinsics, one batched backend call each.
+    """Rewards ``[N]`` of ``N`` extrinsics on the training env (spread over its workers).
 
-    Scores on the training env while it is open (spread over its worker processes); otherwise
-    builds one env in this process on first use (the same recipe, segments and references).
+    Args:
+        env: The open training env (a ``CalibrationEnv`` or a ``ParallelEnv`` of them).
+        time_offset_s: The time offset (s) every candidate is scored with, or ``None``.
     """
 
-    def __init__(self, recipe: Recipe, env, data: PreparedData, time_offset_s: float | None):
-        self.recipe, self.data, self.offset = recipe, data, time_offset_s
-        self.env = None if getattr(env, "is_closed", False) else env
+    def __init__(self, env, time_offset_s: float | None):
+        self.env, self.offset = env, time_offset_s
         self.last = None  # the latest call's RewardBreakdown (reward ingredients per candidate)
 
     def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
-        from l2calib.train.envs import make_env, score_batch
+        from l2calib.train.envs import score_batch
 
-        n = T_imu_lidar.shape[0]
-        if self.env is None:
-            recipe, data = self.recipe, self.data
-            self.env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, n)
         offsets = None
         if self.offset is not None:
-            offsets = torch.full((n,), float(self.offset), dtype=torch.float64)
+            offsets = torch.full((T_imu_lidar.shape[0],), float(self.offset), dtype=torch.float64)
         self.last = score_batch(self.env, T_imu_lidar, offsets)
         return self.last.reward.detach().to(torch.float64)
 
@@ -266,7 +262,7 @@ def _attempt(
     mode = policy.mode()
     T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
     offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
-    score = _Scorer(recipe, env, data, offset)
+    score = _Scorer(env, offset)
     refined = None
     if cfg.refine_rounds > 0:
         say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
