@@ -50,6 +50,10 @@ class ReferenceSourceError(L2CalibError):
     """A reference trajectory cannot be computed or loaded."""
 
 
+class ReferenceLostTrackError(ReferenceSourceError):
+    """A LiDAR-odometry reference lost track on this data (the recipe's fallback may take over)."""
+
+
 class TrainingError(L2CalibError):
     """Training cannot start or continue (bad checkpoint, no valid candidates, ...)."""
 

@@ -22,10 +22,10 @@ from l2calib.agreement import (  # noqa: F401  (re-exported: the pipeline's publ
 )
 from l2calib.data import Segment
 from l2calib.data import Sequence as DataSequence
-from l2calib.errors import DataError
+from l2calib.errors import DataError, ReferenceLostTrackError
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.outputs.calibration_file import CalibrationResult
-from l2calib.recipe import Recipe
+from l2calib.recipe import PluginChoice, Recipe
 
 log = logging.getLogger("l2calib")
 
@@ -72,21 +72,42 @@ def compute_references(
     recipe: Recipe,
     segments: Sequence[Segment],
     sequences: Sequence[DataSequence] | None = None,
+    note: Callable[[str], None] | None = None,
 ) -> list[ReferenceTrajectory]:
-    """Runs the recipe's reference plugin on the segments.
+    """Runs the recipe's reference plugin on the segments (its fallback if it loses track).
 
     Args:
         recipe: The resolved recipe (``reference`` and ``data`` sections are used).
         segments: Selected segments.
         sequences: The sequences the segments were cut from: LiDAR-odometry references start
             ``margin_s`` before each segment on their scans (warm-up).
+        note: Called with a message for the user when the fallback takes over.
+
+    Raises:
+        ReferenceLostTrackError: if the reference loses track and the recipe has no fallback.
     """
     from l2calib.plugins import get_plugin
 
-    source = get_plugin("l2calib.references", recipe.reference.name).build(
-        recipe.reference.options, data=recipe.data, sequences=sequences
-    )
-    refs = source.compute(list(segments))
+    def compute(choice: PluginChoice) -> list[ReferenceTrajectory]:
+        source = get_plugin("l2calib.references", choice.name).build(
+            choice.options, data=recipe.data, sequences=sequences
+        )
+        return source.compute(list(segments))
+
+    fallback = recipe.reference.fallback
+    try:
+        refs = compute(recipe.reference)
+    except ReferenceLostTrackError as exc:
+        if fallback is None:
+            raise
+        msg = (
+            f"the {recipe.reference.name} reference failed ({exc.message}); the recipe's "
+            f"fallback, {fallback.name}, is used instead"
+        )
+        log.warning(msg)
+        if note is not None:
+            note(msg)
+        refs = compute(fallback)
     if any(r.constrains == "position" for r in refs):
         log.info("the reference constrains positions only: the reward's rotation term is dropped")
     return refs
@@ -106,8 +127,9 @@ def prepare_data(
     say("selecting informative data")
     segments, selection = select_segments(recipe, sequences)
     say(f"computing the {recipe.reference.name} reference")
-    references = compute_references(recipe, segments, sequences)
-    return PreparedData(list(sequences), segments, references, selection)
+    notes: list[str] = []
+    references = compute_references(recipe, segments, sequences, notes.append)
+    return PreparedData(list(sequences), segments, references, selection, notes)
 
 
 def undetermined_axes(

@@ -88,6 +88,17 @@ class PluginChoice(StrictModel):
     options: dict[str, Any] = Field(default_factory=dict)
 
 
+class ReferenceChoice(PluginChoice):
+    """The reference plugin, plus an optional fallback for data on which it loses track."""
+
+    fallback: PluginChoice | None = Field(
+        None,
+        description="reference computed instead when this one loses track on the data (e.g. "
+        "ct-lidar on some 16-beam motion); a warning names it. Dropped when reference.name is "
+        "overridden",
+    )
+
+
 class ExtrinsicPrior(StrictModel):
     """An initial guess of ``T_imu_lidar`` with its uncertainty."""
 
@@ -165,8 +176,8 @@ class TrainConfig(StrictModel):
     refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
 
 
-def _reference() -> PluginChoice:
-    return PluginChoice(name="kiss-icp")
+def _reference() -> ReferenceChoice:
+    return ReferenceChoice(name="kiss-icp")
 
 
 def _backend() -> PluginChoice:
@@ -180,7 +191,7 @@ class Recipe(StrictModel):
     description: str = ""
     data: DataConfig = Field(default_factory=DataConfig)
     selection: SelectionConfig = Field(default_factory=SelectionConfig)
-    reference: PluginChoice = Field(default_factory=_reference)
+    reference: ReferenceChoice = Field(default_factory=_reference)
     backend: PluginChoice = Field(default_factory=_backend)
     policy: PolicyChoice = Field(default_factory=PolicyChoice)
     reward: RewardConfig = Field(default_factory=RewardConfig)
@@ -230,6 +241,10 @@ def apply_overrides(data: dict[str, Any], overrides: list[str]) -> dict[str, Any
                 "%s.name=%s replaces %s: the recipe's %s.options (%s) are not used",
                 section, new_name, old_name, section, ", ".join(map(str, dropped or {})),
             )  # fmt: skip
+        if old_name not in (None, new_name) and data[section].pop("fallback", None):
+            log.info(
+                "%s.name=%s replaces %s: its fallback is not used", section, new_name, old_name
+            )
     for item in overrides:
         if item not in names:
             _set(data, item)
@@ -330,8 +345,10 @@ def validate_plugin_options(recipe: Recipe, source: str = "recipe") -> Recipe:
     """Checks every plugin's options against its config model (imports only spec modules)."""
     from l2calib.plugins import get_plugin
 
-    for section, group in PLUGIN_SECTIONS.items():
-        choice: PluginChoice = getattr(recipe, section)
+    choices = [(s, g, getattr(recipe, s)) for s, g in PLUGIN_SECTIONS.items()]
+    if recipe.reference.fallback is not None:
+        choices.append(("reference.fallback", "l2calib.references", recipe.reference.fallback))
+    for section, group, choice in choices:
         try:
             spec = get_plugin(group, choice.name)
         except PluginError as exc:
@@ -353,8 +370,10 @@ def filled_plugin_options(recipe: Recipe) -> tuple[Recipe, list[str]]:
 
     notices = []
     data = recipe.model_dump(mode="json")
-    for section, group in PLUGIN_SECTIONS.items():
-        choice = data[section]
+    choices = [(s, g, data[s]) for s, g in PLUGIN_SECTIONS.items()]
+    if data["reference"].get("fallback"):
+        choices.append(("reference.fallback", "l2calib.references", data["reference"]["fallback"]))
+    for section, group, choice in choices:
         try:
             spec = get_plugin(group, choice["name"])
         except PluginError as exc:

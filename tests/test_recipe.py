@@ -101,16 +101,39 @@ def test_dump_is_complete_and_reloads(fake_env, tmp_path):
         assert key in text
 
 
-def test_switching_a_plugin_drops_the_options_written_for_the_old_one(caplog):
+def test_switching_a_plugin_drops_the_options_written_for_the_old_one(caplog, tmp_path):
     import logging
 
+    kiss = {"name": "kiss-icp", "options": {"max_range_m": 70.0, "voxel_size": 0.5}}
+    path = _write(tmp_path, {"reference": kiss})
     with caplog.at_level(logging.INFO, logger="l2calib.recipe"):
         recipe = load_recipe(
-            "livox-mid360-mti300",
+            path,
             ["reference.options.max_points=2000", "reference.name=ct-lidar"],  # order is free
         )
     assert recipe.reference.name == "ct-lidar"
     assert recipe.reference.options == {"max_points": 2000}  # kiss-icp's voxel_size is gone
     assert "reference.options (max_range_m, voxel_size) are not used" in caplog.text
-    same = load_recipe("livox-mid360-mti300", ["reference.name=kiss-icp"])
+    same = load_recipe(path, ["reference.name=kiss-icp"])
     assert same.reference.options["voxel_size"] == 0.5  # not a switch: the options stay
+
+
+def test_the_reference_fallback_is_validated_and_dropped_on_a_switch(caplog):
+    import logging
+
+    recipe = load_recipe("livox-mid360-mti300")
+    assert recipe.reference.name == "ct-lidar"
+    assert recipe.reference.fallback.name == "kiss-icp"
+    assert recipe.reference.fallback.options["voxel_size"] == 0.5
+    with pytest.raises(ConfigError, match="reference.fallback.options.voxel_size: Input should"):
+        load_recipe("livox-mid360-mti300", ["reference.fallback.options.voxel_size=-1"])
+    with pytest.raises(ConfigError, match="reference.fallback.name: no plugin named 'nope'"):
+        load_recipe("livox-mid360-mti300", ["reference.fallback.name=nope"])
+    with caplog.at_level(logging.INFO, logger="l2calib.recipe"):
+        gt = load_recipe(
+            "livox-mid360-mti300", ["reference.name=gt-file", "reference.options.path=gt.tum"]
+        )
+    assert gt.reference.fallback is None  # a gt-file the user chose is never replaced
+    assert "reference.name=gt-file replaces ct-lidar: its fallback is not used" in caplog.text
+    filled, _ = filled_plugin_options(recipe)
+    assert filled.reference.fallback.options["deskew_iterations"] == 3  # kiss-icp's defaults

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
-from l2calib.errors import ReferenceSourceError
+from l2calib.errors import ReferenceLostTrackError, ReferenceSourceError
 from l2calib.references.ct_map import VoxelPlaneMap, voxel_subsample
 from l2calib.references.options import CtLidarOptions
 
@@ -293,7 +293,7 @@ class CtLidarOdometry:
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
         if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
             when = (stamps[k] - stamps[0]) / NS_PER_S
-            raise ReferenceSourceError(
+            raise ReferenceLostTrackError(
                 f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
                 f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, body rate "
                 f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
@@ -370,7 +370,7 @@ class CtLidarOdometry:
             motions = self._forward(prepared, stamps, start, self.P0, len(scans) - 1, on_scan)
         for m in motions:
             if not all(np.all(np.isfinite(x)) for x in (m.R_b, m.t_b, m.omega, m.v)):
-                raise ReferenceSourceError(
+                raise ReferenceLostTrackError(
                     "ct-lidar produced a non-finite pose", fix="check the scans' point times"
                 )
         return stamps, motions

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from l2calib.alignment import ape
 from l2calib.data import Segment
-from l2calib.errors import ConfigError, ReferenceSourceError
+from l2calib.errors import ConfigError, ReferenceLostTrackError, ReferenceSourceError
 from l2calib.plugins import get_plugin
 from l2calib.recipe import recipe_from_dict
 from l2calib.references import ct_lidar_source
@@ -166,14 +166,35 @@ def test_the_pipeline_hands_the_sequences_over_for_warm_up(swing, monkeypatch):
     assert all(s.stamp_ns < first for s in seen["warmup"])
 
 
-def test_lost_track_is_a_clear_error_not_a_wrong_reference(swing, tmp_path):
-    """Scans that no longer match the map (here: points scattered at random) must raise."""
+@pytest.fixture(scope="module")
+def lost(swing):
+    """The swing's segment with scans 4-9 scattered at random: no odometry can follow it."""
     seg = swing.segment
     rng = np.random.default_rng(0)
     scans = list(seg.scans[:4])
     for s in seg.scans[4:10]:
         pts = rng.uniform(-20, 20, size=s.points_lidar.shape).astype(np.float32)
         scans.append(type(s)(s.stamp_ns, pts, s.offset_s))
-    bad = Segment(seg.name, seg.sequence, seg.start_ns, seg.end_ns, seg.imu, scans)
-    with pytest.raises(ReferenceSourceError, match="lost track .* s into the run.*kiss-icp"):
-        build(tmp_path, cache=False).compute([bad])
+    return Segment(seg.name, seg.sequence, seg.start_ns, seg.end_ns, seg.imu, scans)
+
+
+def test_lost_track_is_a_clear_error_not_a_wrong_reference(lost, tmp_path):
+    """Scans that no longer match the map must raise."""
+    with pytest.raises(ReferenceLostTrackError, match="lost track .* s into the run.*kiss-icp"):
+        build(tmp_path, cache=False).compute([lost])
+
+
+def test_the_recipe_fallback_takes_over_when_ct_lidar_loses_track(lost, tmp_path):
+    from l2calib.pipeline import compute_references
+
+    choice = {"name": "ct-lidar", "options": {"cache": False}}
+    with pytest.raises(ReferenceLostTrackError):  # no fallback: the error reaches the user
+        compute_references(recipe_from_dict({"reference": choice}), [lost])
+    fallback = {"name": "kiss-icp", "options": {"cache": False}}
+    recipe = recipe_from_dict({"reference": {**choice, "fallback": fallback}})
+    notes: list[str] = []
+    (ref,) = compute_references(recipe, [lost], note=notes.append)
+    assert ref.source == "kiss-icp"
+    assert ref.trajectory.stamps_ns[0] <= lost.start_ns  # a whole reference of the segment
+    assert len(notes) == 1 and "ct-lidar reference failed (ct-lidar lost track" in notes[0]
+    assert "fallback, kiss-icp, is used instead" in notes[0]
