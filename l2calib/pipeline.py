@@ -305,6 +305,7 @@ def _attempt(
         "rotation_deg": finite_or_none(torch.rad2deg(score.last.mean_e_r[0]), 4),
     }
     unc = policy.uncertainty()
+    sources = sorted({r.source for r in data.references})
     return CalibrationResult(
         T_imu_lidar=T_mode.numpy(),
         time_offset_s=offset,
@@ -321,8 +322,12 @@ def _attempt(
         resolution=resolution,
         undetermined=undetermined_axes(resolution, data.selection),
         reference_agreement=agreement,
-        warnings=disagreement_warnings(agreement, sorted({r.source for r in data.references})),
-        extra={"refine": _refine_summary(refined)} if refined else {},
+        warnings=disagreement_warnings(agreement, sources),
+        extra={
+            # which reference the reward compared with, and why (e.g. the recipe's fallback)
+            "reference": {"sources": sources, "notes": list(data.notes)},
+            **({"refine": _refine_summary(refined)} if refined else {}),
+        },
     ), outcome
 
 

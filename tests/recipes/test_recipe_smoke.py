@@ -82,4 +82,6 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     assert out["refine"]["refined_reward"] >= out["refine"]["policy_mode_reward"]
     assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
     assert len(out["T_imu_lidar"]) == 4 and "extrinsic_T" in out["fast_lio"]
+    # the recipe's own reference (ct-lidar for the MID-360) tracked: no fallback was needed
+    assert out["reference"] == {"sources": [recipe.reference.name], "notes": []}
     assert (tmp_path / "out" / "report.png").stat().st_size > 10_000
