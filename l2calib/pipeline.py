@@ -22,7 +22,7 @@ from l2calib.agreement import (  # noqa: F401  (re-exported: the pipeline's publ
 )
 from l2calib.data import Segment
 from l2calib.data import Sequence as DataSequence
-from l2calib.errors import DataError, ReferenceLostTrackError
+from l2calib.errors import DataError, ReferenceLostTrackError, TrainingError
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.outputs.calibration_file import CalibrationResult
 from l2calib.recipe import PluginChoice, Recipe
@@ -190,10 +190,17 @@ def train_policy(
     reward itself ranks far below the truth. Restart ``k`` keeps its checkpoint and metrics in
     ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's evaluations,
     iterations and wall time count every attempt.
+
+    Raises:
+        TrainingError: if ``resume`` is asked without an ``out_dir`` to resume from.
     """
     from l2calib.train.checkpoint import CHECKPOINT_NAME
     from l2calib.train.envs import make_training_env
 
+    if resume and out_dir is None:
+        raise TrainingError(
+            "resume needs the output directory of the run to continue", fix="pass its out_dir"
+        )
     say = stage or (lambda _msg: None)
     say(f"preparing the {recipe.backend.name} odometry")
     env = make_training_env(recipe, data.segments, data.references)

@@ -100,6 +100,11 @@ def test_restart_when_the_result_disagrees_keeps_the_best(fake_backend_env, tmp_
     assert torch.equal(torch.as_tensor(again.T_imu_lidar), torch.as_tensor(result.T_imu_lidar))
 
 
+def test_resume_without_an_out_dir_is_a_clear_error(fake_backend_env):
+    with pytest.raises(TrainingError, match="resume needs the output directory"):
+        _run(_recipe(), None, resume=True)
+
+
 def test_resume_continues_to_the_same_result(fake_backend_env, tmp_path):
     recipe = _recipe(max_iterations=5, checkpoint_every=2)
     full, _ = _run(recipe)
