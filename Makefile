@@ -20,6 +20,7 @@ bench: install
 
 lint: install
 	$(BIN)/python -m ruff check l2calib backends policies tests benchmarks
+	$(BIN)/python -m ruff format --check l2calib backends policies tests benchmarks
 
 clean:
 	rm -rf $(VENV) .pytest_cache

@@ -33,41 +33,30 @@ def action_to_extrinsic(action: torch.Tensor) -> tuple[torch.Tensor, torch.Tenso
     return T, (action[..., 7] if action.shape[-1] == 8 else None)
 
 
-class CalibrationEnv(EnvBase):
-    """Scores K candidate extrinsics per step with an odometry backend against references.
+class ScoringEnv(EnvBase):
+    """A single-step, batched environment whose reward scores K candidate extrinsics.
+
+    Holds what every calibration MDP shares — the specs, the one-step episode, the mapping from
+    actions to extrinsics — so the trainer sees the same environment whatever scores the
+    candidates. Subclasses implement :meth:`score_candidates`: :class:`CalibrationEnv` runs an
+    odometry backend; the policies' toy problem (``l2calib_policies.toy``) a closed-form reward.
 
     Args:
-        backend: A prepared :class:`OdometryBackend`.
-        references: One reference per prepared segment, in the backend's segment order.
         num_candidates: K, the batch size.
-        reward: Reward settings (kind, alignment, maximum interpolation gap).
-        time_offset: Whether actions carry a LiDAR–IMU time offset (8-dim actions).
-        worker_index: This env's place among the worker processes of a ``ParallelEnv`` (which
-            share of a batch :meth:`score_share` scores).
+        action_dim: 7 (quaternion xyzw + translation m) or 8 (+ time offset s).
     """
 
-    def __init__(
-        self,
-        backend: OdometryBackend,
-        references: Sequence[ReferenceTrajectory],
-        num_candidates: int,
-        reward: RewardConfig | None = None,
-        time_offset: bool = False,
-        worker_index: int = 0,
-    ) -> None:
+    def __init__(self, num_candidates: int, action_dim: int = 7) -> None:
         super().__init__(batch_size=torch.Size([num_candidates]), device="cpu")
-        self.backend = backend
-        self.worker_index = worker_index
-        self.references = list(references)
-        self.reward_config = reward or RewardConfig()
-        self.action_dim = 8 if time_offset else 7
+        self.action_dim = action_dim
         self.evaluations = 0
-        align = self.reward_config.align
-        if align == "auto":
-            align = "none" if backend.outputs_in_reference_frame else "se3"
-        self.align = align
-        self._ref_cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
         self._make_spec()
+
+    def score_candidates(
+        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
+    ) -> tuple[RewardBreakdown, torch.Tensor]:
+        """Scores ``T_imu_lidar [K, 4, 4]``; returns the breakdown and ``[K]`` status codes."""
+        raise NotImplementedError
 
     def _make_spec(self) -> None:
         K = self.batch_size[0]
@@ -104,6 +93,63 @@ class CalibrationEnv(EnvBase):
         false = torch.zeros(self.batch_size[0], 1, dtype=torch.bool)
         out.update({"done": false, "terminated": false.clone(), "truncated": false.clone()})
         return out
+
+    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
+        action = tensordict["action"].to(F64)
+        T, offset = action_to_extrinsic(action)
+        breakdown, status = self.score_candidates(T, offset)
+        out = self._blank()
+        out["mean_e_t"] = breakdown.mean_e_t[:, None]
+        out["mean_e_r"] = torch.nan_to_num(breakdown.mean_e_r, nan=-1.0)[:, None]
+        out["status"] = status[:, None]
+        true = torch.ones(self.batch_size[0], 1, dtype=torch.bool)
+        out.update(
+            {
+                "reward": breakdown.reward[:, None],
+                "done": true,
+                "terminated": true.clone(),
+                "truncated": torch.zeros_like(true),
+            }
+        )
+        return out
+
+    def _set_seed(self, seed: int | None) -> None:
+        # The environment is deterministic: all randomness lives in the policy.
+        self._seed = seed
+
+
+class CalibrationEnv(ScoringEnv):
+    """Scores K candidate extrinsics per step with an odometry backend against references.
+
+    Args:
+        backend: A prepared :class:`OdometryBackend`.
+        references: One reference per prepared segment, in the backend's segment order.
+        num_candidates: K, the batch size.
+        reward: Reward settings (kind, alignment, maximum interpolation gap).
+        time_offset: Whether actions carry a LiDAR–IMU time offset (8-dim actions).
+        worker_index: This env's place among the worker processes of a ``ParallelEnv`` (which
+            share of a batch :meth:`score_share` scores).
+    """
+
+    def __init__(
+        self,
+        backend: OdometryBackend,
+        references: Sequence[ReferenceTrajectory],
+        num_candidates: int,
+        reward: RewardConfig | None = None,
+        time_offset: bool = False,
+        worker_index: int = 0,
+    ) -> None:
+        super().__init__(num_candidates, 8 if time_offset else 7)
+        self.backend = backend
+        self.worker_index = worker_index
+        self.references = list(references)
+        self.reward_config = reward or RewardConfig()
+        align = self.reward_config.align
+        if align == "auto":
+            align = "none" if backend.outputs_in_reference_frame else "se3"
+        self.align = align
+        self._ref_cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
 
     def _reference_at(self, index: int, segment: str, stamps_ns: np.ndarray):
         if segment not in self._ref_cache:
@@ -173,26 +219,3 @@ class CalibrationEnv(EnvBase):
             count = torch.zeros(0, dtype=torch.int64)
             return RewardBreakdown(none, none.clone(), none.clone(), count), count.clone()
         return self.score_candidates(T, offsets)
-
-    def _step(self, tensordict: TensorDictBase) -> TensorDictBase:
-        action = tensordict["action"].to(F64)
-        T, offset = action_to_extrinsic(action)
-        breakdown, status = self.score_candidates(T, offset)
-        out = self._blank()
-        out["mean_e_t"] = breakdown.mean_e_t[:, None]
-        out["mean_e_r"] = torch.nan_to_num(breakdown.mean_e_r, nan=-1.0)[:, None]
-        out["status"] = status[:, None]
-        true = torch.ones(self.batch_size[0], 1, dtype=torch.bool)
-        out.update(
-            {
-                "reward": breakdown.reward[:, None],
-                "done": true,
-                "terminated": true.clone(),
-                "truncated": torch.zeros_like(true),
-            }
-        )
-        return out
-
-    def _set_seed(self, seed: int | None) -> None:
-        # The environment is deterministic: all randomness lives in the policy.
-        self._seed = seed

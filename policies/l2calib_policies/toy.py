@@ -1,10 +1,11 @@
-"""A toy single-step calibration problem with a known optimum, trained by TorchRL's PPO.
+"""A toy single-step calibration problem with a known optimum, trained by the real trainer.
 
 No odometry: the reward of a candidate ``(q, t)`` is
-``exp(-θ(q, q*)/θ0 - |t - t*|/d0)`` with ``θ`` the geodesic rotation angle. It exercises the
-same pieces the real trainer uses (``ProbabilisticActor`` sampling with
-``ExplorationType.RANDOM``, ``"action_log_prob"``, ``ClipPPOLoss`` with the entropy bonus, the
-value module as the baseline of a one-step episode) and is the acceptance test of the policies.
+``exp(-θ(q, q*)/θ0 - |t - t*|/d0)`` with ``θ`` the geodesic rotation angle. :class:`ToyEnv`
+has the calibration environment's specs (it shares :class:`l2calib.env.ScoringEnv`), and
+:func:`run_toy_ppo` trains a policy plugin on it with the production
+:class:`l2calib.train.ppo.PpoTrainer` (TorchRL collector, ``ClipPPOLoss``, the same learning-rate
+rules), so there is one training loop in the project. It is the acceptance test of the policies.
 """
 
 from __future__ import annotations
@@ -14,22 +15,49 @@ from dataclasses import dataclass, field
 
 import torch
 from torch import Tensor
-from torchrl.envs.utils import ExplorationType, set_exploration_type
-from torchrl.objectives import ClipPPOLoss
 
+from l2calib.env import ScoringEnv
 from l2calib.geometry import quat_to_matrix, rotation_angle
 from l2calib.plugins import get_plugin
+from l2calib.reward import RewardBreakdown
 
 
 def toy_reward(
     action: Tensor, q_star: Tensor, t_star: Tensor, theta0: float = 0.5, d0: float = 0.2
 ) -> Tensor:
     """Reward ``[...]`` of actions ``[..., 7]`` for the optimum ``(q*, t*)``."""
-    R = quat_to_matrix(action[..., :4])
-    R_star = quat_to_matrix(q_star).expand_as(R)
-    theta = rotation_angle(R_star.transpose(-1, -2) @ R)
-    dist = (action[..., 4:7] - t_star).norm(dim=-1)
+    theta, dist = _errors(quat_to_matrix(action[..., :4]), action[..., 4:7], q_star, t_star)
     return torch.exp(-theta / theta0 - dist / d0)
+
+
+def _errors(R: Tensor, t: Tensor, q_star: Tensor, t_star: Tensor) -> tuple[Tensor, Tensor]:
+    """Geodesic angle (rad) and distance (m) of ``(R [..., 3, 3], t [..., 3])`` from the optimum."""
+    R_star = quat_to_matrix(q_star.to(R.dtype)).expand_as(R)
+    return rotation_angle(R_star.transpose(-1, -2) @ R), (t - t_star.to(t.dtype)).norm(dim=-1)
+
+
+class ToyEnv(ScoringEnv):
+    """Scores K candidates with :func:`toy_reward` (``mean_e_t``: distance, ``mean_e_r``: angle).
+
+    Args:
+        q_star: Optimum rotation (xyzw) ``[4]``.
+        t_star: Optimum translation (m) ``[3]``.
+        num_candidates: K, the batch size.
+    """
+
+    def __init__(self, q_star: Tensor, t_star: Tensor, num_candidates: int) -> None:
+        super().__init__(num_candidates, action_dim=7)
+        self.q_star, self.t_star = q_star, t_star
+
+    def score_candidates(self, T_imu_lidar: Tensor, time_offset_s: Tensor | None = None):
+        """The toy reward of ``T_imu_lidar [K, 4, 4]``; every candidate's status is OK (0)."""
+        R, t = T_imu_lidar[:, :3, :3], T_imu_lidar[:, :3, 3]
+        theta, dist = _errors(R, t, self.q_star, self.t_star)
+        reward = torch.exp(-theta / 0.5 - dist / 0.2)  # toy_reward's defaults
+        K = T_imu_lidar.shape[0]
+        self.evaluations += K
+        ones = torch.ones(K, dtype=torch.int64)
+        return RewardBreakdown(reward, dist, theta, ones), torch.zeros(K, dtype=torch.int64)
 
 
 @dataclass
@@ -40,6 +68,7 @@ class ToyResult:
     translation_error_m: list[float] = field(default_factory=list)
     mean_reward: list[float] = field(default_factory=list)
     rotation_sigma_deg: list[list[float]] = field(default_factory=list)
+    stop_reason: str = ""
 
 
 def run_toy_ppo(
@@ -48,11 +77,9 @@ def run_toy_ppo(
     t_star: Tensor,
     iterations: int = 200,
     candidates: int = 32,
-    epochs: int = 4,
-    lr: float = 3e-2,
-    entropy_coef: float = 1e-3,
     seed: int = 0,
     options: dict | None = None,
+    **train: float | int | str,
 ) -> ToyResult:
     """Trains a policy plugin on :func:`toy_reward` from "no idea" and records its mode error.
 
@@ -60,49 +87,45 @@ def run_toy_ppo(
         policy_name: ``"bingham"`` or ``"gaussian"``.
         q_star: Optimum rotation (xyzw) ``[4]``.
         t_star: Optimum translation (m) ``[3]``.
-        iterations: PPO iterations (each: ``candidates`` samples, ``epochs`` full-batch steps).
+        iterations: Most PPO iterations (the trainer's convergence rule may stop it sooner).
         candidates: Actions sampled per iteration.
-        epochs: Gradient steps per iteration.
-        lr: Adam learning rate (cosine-annealed to 10 % over the run).
-        entropy_coef: PPO entropy bonus.
         seed: Seeds the actor's sampler.
         options: Plugin options.
+        **train: Other ``train`` recipe fields (``lr``, ``ppo_epochs``, ...); the production
+            defaults otherwise.
 
     Returns:
         The history of the mode's errors, mean reward and rotation σ per iteration.
     """
+    from l2calib.recipe import TrainConfig
+    from l2calib.train.ppo import PpoTrainer
+
     torch.manual_seed(seed)
+    cfg = TrainConfig(
+        seed=seed,
+        candidates_per_iteration=candidates,
+        max_iterations=iterations,
+        max_evaluations=iterations * candidates,
+        workers=1,
+        **train,
+    )
     policy = get_plugin("l2calib.policies", policy_name).build(
         options or {}, action_dim=7, prior=None, seed=seed
     )
-    loss = ClipPPOLoss(
-        policy.actor, policy.value, entropy_coeff=entropy_coef, normalize_advantage=True
-    )
-    opt = torch.optim.Adam(loss.parameters(), lr=lr)
-    sched = torch.optim.lr_scheduler.CosineAnnealingLR(opt, iterations * epochs, eta_min=0.1 * lr)
-    q_star = q_star.to(torch.float64)
-    t_star = t_star.to(torch.float64)
+    env = ToyEnv(q_star, t_star, candidates)
     out = ToyResult()
-    for _ in range(iterations):
-        with torch.no_grad(), set_exploration_type(ExplorationType.RANDOM):
-            td = policy.actor(policy.observation((candidates,)))
-            reward = toy_reward(td["action"], q_star, t_star)[..., None]
-            value = policy.value(td.clone())["state_value"]
-        # One-step episodes: the value target is the reward, the advantage r - V.
-        td["value_target"] = reward
-        td["advantage"] = reward - value
-        for _ in range(epochs):
-            losses = loss(td)
-            total = losses["loss_objective"] + losses["loss_critic"] + losses["loss_entropy"]
-            opt.zero_grad()
-            total.backward()
-            torch.nn.utils.clip_grad_norm_(loss.parameters(), 1.0)
-            opt.step()
-            sched.step()
-        mode = policy.mode()
-        R_err = quat_to_matrix(q_star).T @ mode["T_imu_lidar"][:3, :3]
-        out.rotation_error_deg.append(math.degrees(float(rotation_angle(R_err))))
-        out.translation_error_m.append(float((mode["t_imu_lidar"] - t_star).norm()))
-        out.mean_reward.append(float(reward.mean()))
-        out.rotation_sigma_deg.append(policy.uncertainty()["rotation_sigma_deg"].tolist())
+
+    def record(rec) -> None:
+        T = torch.as_tensor(policy.mode()["T_imu_lidar"], dtype=torch.float64)
+        theta, dist = _errors(T[:3, :3], T[:3, 3], q_star, t_star)
+        out.rotation_error_deg.append(math.degrees(float(theta)))
+        out.translation_error_m.append(float(dist))
+        out.mean_reward.append(rec.reward_mean)
+        out.rotation_sigma_deg.append(list(rec.rotation_sigma_deg))
+
+    trainer = PpoTrainer(policy, env, cfg, out_dir=None, fingerprint="toy")
+    try:
+        out.stop_reason = trainer.run(record).stop_reason
+    finally:
+        env.close()
     return out

@@ -1,4 +1,4 @@
-"""Acceptance: PPO on a toy reward with a known optimum (no odometry) converges."""
+"""Acceptance: the production PPO trainer (PpoTrainer) converges on a toy reward with a known optimum."""
 
 from __future__ import annotations
 
