@@ -1,4 +1,4 @@
-"""Acceptance: the production PPO trainer (PpoTrainer) converges on a toy reward with a known optimum."""
+"""Acceptance: the production trainer (PpoTrainer) converges on a toy reward with known optimum."""
 
 from __future__ import annotations
 
