@@ -19,7 +19,9 @@ ORDER = (
     "sim_realism",
     "references",
     "backends",
+    "demo",
     "calibration",
+    "tests",
 )
 
 

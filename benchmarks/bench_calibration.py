@@ -28,10 +28,11 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.machine import machine_info
 from l2calib import geometry as geo
 from l2calib.errors import L2CalibError
 from l2calib.recipe import load_recipe
-from l2calib.sim import SimConfig, simulate
+from l2calib.sim import SIMULATOR_VERSION, SimConfig, simulate
 
 RESULTS = Path(__file__).parent / "results"
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
@@ -71,6 +72,7 @@ def cases(quick: bool) -> list[Case]:
     gt = "reference.name=gt"
     ct = "reference.name=ct-lidar"
     kiss = "reference.name=kiss-icp"
+    gtsam = "backend.name=gtsam"  # the other LIO backend, beside the default iekf rows
     lidar_only = ["selection.budget_s=15"]
     hh = ["selection.budget_s=15", gt]
     uav = ["selection.window_s=10", "selection.budget_s=20", gt]
@@ -78,10 +80,12 @@ def cases(quick: bool) -> list[Case]:
     return [
         Case("handheld", "handheld", [0], overrides=hh, target=(2.0, 0.5)),
         Case("handheld gaussian", "handheld", [0], overrides=[*hh, "policy.name=gaussian"]),
+        Case("handheld gtsam", "handheld", [0], overrides=[*hh, gtsam], target=(2.0, 0.5)),
         Case("handheld ct-lidar", "handheld", [0], overrides=[*lidar_only, ct], target=(2.0, 0.5)),
         Case("handheld kiss-icp", "handheld", [0], overrides=[*lidar_only, kiss]),
         Case("handheld no selection", "handheld", [0], 15.0, ["selection.enabled=false", gt]),
         Case("uav all", "uav", [11, 12, 13], overrides=uav, target=(4.0, 1.5)),
+        Case("uav all gtsam", "uav", [11, 12, 13], overrides=[*uav, gtsam], target=(4.0, 1.5)),
         Case("ugv all", "ugv", [21, 22, 23], overrides=ugv),
         Case("uav all ct-lidar", "uav", [11, 12, 13], overrides=[*uav[:-1], ct], target=(4.0, 1.5)),
         Case("ugv all ct-lidar", "ugv", [21, 22, 23], overrides=[*ugv[:-1], ct]),
@@ -171,6 +175,8 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "attempts": result.extra.get("attempts"),  # PPO restarts after a failed agreement check
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
+        "machine": machine_info(),  # at the row's end; "load" above is kept for older readers
+        "simulator_version": SIMULATOR_VERSION,  # rows without it: version 1
     }
 
 

@@ -45,6 +45,7 @@ from l2calib.cli import (  # noqa: E402
     cmd_inspect,
     cmd_plugins,
     cmd_recipe,
+    cmd_reference,
     cmd_select,
     cmd_simulate,
 )
@@ -56,6 +57,7 @@ for _module in (
     cmd_simulate,
     cmd_inspect,
     cmd_select,
+    cmd_reference,
     cmd_plugins,
     cmd_recipe,
 ):

@@ -16,6 +16,8 @@ DEMO_RIG = {"translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
 
 
 DEMO_BUDGET = ("train.max_iterations=100", "train.max_evaluations=3200")
+#: The reference the demo uses unless ``--reference`` says otherwise.
+DEFAULT_REFERENCE = "gt-file"
 
 
 def demo(
@@ -25,7 +27,7 @@ def demo(
     set_: list[str] = typer.Option([], "--set", help="Override a field of the demo recipe."),
     force: bool = typer.Option(False, "--force", help="Move an existing --out aside first."),
     reference: str = typer.Option(
-        "gt-file",
+        DEFAULT_REFERENCE,
         "--reference",
         help="gt-file: the simulated LiDAR trajectory as a ground-truth file (as from motion "
         "capture); kiss-icp: LiDAR-only odometry (not accurate enough on this aggressive 16-beam "

@@ -16,7 +16,12 @@ from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["SimConfig", "SimRun", "simulate", "write_run"]
+__all__ = ["SIMULATOR_VERSION", "SimConfig", "SimRun", "simulate", "write_run"]
+
+#: Bumped when simulated data change for the same config and seed; recorded with benchmark rows
+#: and in ``scenario.json``. 2 (2026-12-02): Velodyne/Hesai per-laser firing stagger, Ouster beam
+#: azimuth offsets, 2 % spurious returns (:mod:`~l2calib.sim.lidar_models`).
+SIMULATOR_VERSION = 2
 
 _LAZY = {
     "SimConfig": "l2calib.sim.scenario",

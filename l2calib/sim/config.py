@@ -62,6 +62,9 @@ class LidarOptions(StrictModel):
     rate_hz: float | None = Field(None, gt=0, le=40)
     range_noise_m: float | None = Field(None, ge=0)
     dropout_prob: float | None = Field(None, ge=0, lt=1)
+    spurious_prob: float | None = Field(
+        None, ge=0, lt=1, description="share of returns short of the surface (dust, mixed pixels)"
+    )
     min_range_m: float | None = Field(None, ge=0)
     max_range_m: float | None = Field(None, gt=0)
     noise: bool = Field(True, description="range noise and random dropouts on/off")

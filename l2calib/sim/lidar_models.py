@@ -7,8 +7,22 @@
   point has its own time; modelled as a fast azimuth sweep with an incommensurate triangular
   elevation oscillation, so coverage keeps growing over successive scans like the real sensor's.
 
-Returns: range noise, random dropouts, grazing-angle dropouts, min/max range, intensity from the
-surface reflectivity and incidence angle.
+Returns: range noise, random dropouts, grazing-angle dropouts, a few percent of spurious returns
+(dust, mixed pixels, multipath: a range anywhere short of the surface), min/max range, intensity
+from the surface reflectivity and incidence angle.
+
+Real sensors are less kind than a column of rays fired at once, and the simulator models what
+LiDAR-only odometry meets on them:
+
+* Velodyne and Hesai fire the lasers of a column one after another (``channel_stagger_s`` apart,
+  in ``firing_order``), so each point has its own time; their drivers stamp points so.
+* Ouster beams of one column fire together but look along slightly different azimuths
+  (``beam_azimuth_deg``, as in the sensor's ``beam_intrinsics``); the driver's points carry the
+  column's time.
+
+Values are from the vendors' manuals where we know them (VLP-16: 2.304 µs per laser, lasers fired
+alternately low and high; Pandar XT32: ~1.5 µs per channel); the Ouster offsets follow the
+±4.2° / ±1.4° pattern of an OS1's ``beam_azimuth_angles``.
 """
 
 from __future__ import annotations
@@ -75,6 +89,10 @@ class LidarSpec:
         range_noise_m: Standard deviation of the range noise (m).
         dropout_prob: Probability that a valid return is lost at random.
         azimuth0_rad: Azimuth of column 0 (rad); columns sweep clockwise from it.
+        channel_stagger_s: Time between two successive laser firings within a column (s).
+        firing_order: Rings in the order they fire within a column (default: ring order).
+        beam_azimuth_deg: Azimuth offset of each ring's beam (deg; default: none).
+        spurious_prob: Probability that a return is spurious (a range short of the surface).
     """
 
     name: str
@@ -91,6 +109,10 @@ class LidarSpec:
     range_noise_m: float = 0.02
     dropout_prob: float = 0.005
     azimuth0_rad: float = 0.0
+    channel_stagger_s: float = 0.0
+    firing_order: tuple[int, ...] = ()
+    beam_azimuth_deg: tuple[float, ...] = ()
+    spurious_prob: float = 0.02
 
     @property
     def channels(self) -> int:
@@ -101,6 +123,33 @@ class LidarSpec:
     def period_s(self) -> float:
         """Scan period (s)."""
         return 1.0 / self.rate_hz
+
+    def ring_delays_s(self) -> np.ndarray:
+        """``[channels]`` firing delay of each ring after its column's time (s)."""
+        order = np.asarray(self.firing_order or range(self.channels), dtype=np.int64)
+        slot = np.empty(self.channels, dtype=np.int64)
+        slot[order] = np.arange(self.channels)
+        return slot * self.channel_stagger_s
+
+    def ring_azimuths_rad(self) -> np.ndarray:
+        """``[channels]`` azimuth offset of each ring's beam (rad)."""
+        if not self.beam_azimuth_deg:
+            return np.zeros(self.channels)
+        return np.radians(np.resize(np.asarray(self.beam_azimuth_deg), self.channels))
+
+
+def _alternating(n: int) -> tuple[int, ...]:
+    """Rings (sorted by elevation) fired alternately from the low and the middle of the fan.
+
+    A VLP-16 fires its lasers as -15°, 1°, -13°, 3°, …: ring ``r`` of the elevation-sorted fan
+    fires in slot ``2r`` for the lower half and ``2(r - n/2) + 1`` for the upper half.
+    """
+    half = n // 2
+    return tuple(r for pair in zip(range(half), range(half, n), strict=True) for r in pair)
+
+
+#: OS1 beam azimuth offsets (deg), repeated over the rings (``beam_intrinsics``-like).
+_OUSTER_AZ = (4.2, 1.4, -1.4, -4.2)
 
 
 LIDARS: dict[str, LidarSpec] = {
@@ -114,6 +163,7 @@ LIDARS: dict[str, LidarSpec] = {
         max_range_m=120.0,
         range_noise_m=0.015,
         azimuth0_rad=np.pi,
+        beam_azimuth_deg=_OUSTER_AZ,
     ),
     "ouster-os1-64": LidarSpec(
         "ouster-os1-64",
@@ -125,6 +175,7 @@ LIDARS: dict[str, LidarSpec] = {
         max_range_m=120.0,
         range_noise_m=0.015,
         azimuth0_rad=np.pi,
+        beam_azimuth_deg=_OUSTER_AZ,
     ),
     "velodyne-vlp-16": LidarSpec(
         "velodyne-vlp-16",
@@ -135,6 +186,8 @@ LIDARS: dict[str, LidarSpec] = {
         min_range_m=0.4,
         max_range_m=100.0,
         range_noise_m=0.03,
+        channel_stagger_s=2.304e-6,
+        firing_order=_alternating(16),
     ),
     "velodyne-vlp-32c": LidarSpec(
         "velodyne-vlp-32c",
@@ -145,6 +198,8 @@ LIDARS: dict[str, LidarSpec] = {
         min_range_m=0.4,
         max_range_m=200.0,
         range_noise_m=0.03,
+        channel_stagger_s=1.152e-6,  # 16 firings of 2.304 µs, two lasers each: ~half per laser
+        firing_order=_alternating(32),
     ),
     "hesai-pandar-xt32": LidarSpec(
         "hesai-pandar-xt32",
@@ -155,6 +210,7 @@ LIDARS: dict[str, LidarSpec] = {
         min_range_m=0.05,
         max_range_m=120.0,
         range_noise_m=0.01,
+        channel_stagger_s=1.512e-6,
     ),
     "livox-mid360": LidarSpec(
         "livox-mid360",
@@ -186,7 +242,7 @@ class FiringPattern:
 
     Attributes:
         directions: ``[P, 3]`` unit ray directions.
-        time_s: ``[P]`` firing time after the scan's nominal start (s), non-decreasing.
+        time_s: ``[P]`` firing time after the scan's nominal start (s).
         ring: ``[P]`` uint16 ring (spinning) or line (livox).
         column: ``[P]`` uint32 column (spinning) or point index within the scan (livox).
         time_index: ``[P]`` index of each ray's firing time in ``unique_times``.
@@ -207,23 +263,31 @@ def column_times_ns(spec: LidarSpec) -> np.ndarray:
 
 
 def spinning_pattern(spec: LidarSpec) -> FiringPattern:
-    """Column-major rays of a spinning LiDAR (all channels of a column fire together)."""
+    """Column-major rays of a spinning LiDAR.
+
+    The lasers of a column fire ``spec.ring_delays_s()`` after the column's time (all at once
+    when the stagger is 0) and look along the column's azimuth plus ``spec.ring_azimuths_rad()``.
+    """
     n_col, n_ring = spec.columns, spec.channels
     az = spec.azimuth0_rad - 2 * np.pi * np.arange(n_col) / n_col  # clockwise
     el = np.radians(np.asarray(spec.elevations_deg))
     az_g, el_g = np.meshgrid(az, el, indexing="ij")  # [col, ring]
+    az_g = az_g + spec.ring_azimuths_rad()[None, :]
     dirs = np.stack(
         [np.cos(el_g) * np.cos(az_g), np.cos(el_g) * np.sin(az_g), np.sin(el_g)], -1
     ).reshape(-1, 3)
     col_t = column_times_ns(spec) / 1e9
     cols = np.repeat(np.arange(n_col, dtype=np.uint32), n_ring)
+    ring = np.tile(np.arange(n_ring, dtype=np.uint16), n_col)
+    time_s = col_t[cols] + spec.ring_delays_s()[ring]
+    unique_times, time_index = np.unique(time_s, return_inverse=True)
     return FiringPattern(
         directions=dirs,
-        time_s=col_t[cols],
-        ring=np.tile(np.arange(n_ring, dtype=np.uint16), n_col),
+        time_s=time_s,
+        ring=ring,
         column=cols,
-        time_index=cols.astype(np.int64),
-        unique_times=col_t,
+        time_index=time_index.astype(np.int64),
+        unique_times=unique_times,
     )
 
 
@@ -285,6 +349,9 @@ def returns(
     if noise:
         valid &= rng.random(true_range.shape) >= spec.dropout_prob
         meas = meas + rng.normal(0.0, spec.range_noise_m, size=meas.shape)
+        if spec.spurious_prob > 0:  # dust, mixed pixels, multipath: short of the surface
+            spurious = valid & (rng.random(meas.shape) < spec.spurious_prob)
+            meas[spurious] = rng.uniform(spec.min_range_m, meas[spurious])
         valid &= meas > spec.min_range_m
     cos = np.clip(cos_incidence, 0.0, 1.0)
     intensity = 255.0 * reflectivity * (0.35 + 0.65 * cos)

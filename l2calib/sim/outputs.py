@@ -23,6 +23,7 @@ import yaml
 from l2calib import __version__
 from l2calib.errors import ConfigError
 from l2calib.io.trajectory_files import write_tum
+from l2calib.sim import SIMULATOR_VERSION
 from l2calib.sim.bagwriter import BagOptions, bag_path, write_bag
 from l2calib.sim.rigs import describe_extrinsic
 
@@ -59,6 +60,7 @@ def scenario_document(run: SimRun, files: dict[str, str], bag: dict | None) -> d
     route = dataclasses.asdict(run.world.route)
     return {
         "generator": f"l2calib {__version__} simulator",
+        "simulator_version": SIMULATOR_VERSION,
         "seed": run.config.seed,
         "config": run.config.model_dump(mode="json"),
         "stats": run.stats,

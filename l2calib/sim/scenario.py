@@ -121,7 +121,14 @@ def _specs(cfg: SimConfig) -> tuple[LidarSpec, ImuSpec, float]:
     spec = get_lidar(lo.model)
     repl = {
         k: getattr(lo, k)
-        for k in ("rate_hz", "range_noise_m", "dropout_prob", "min_range_m", "max_range_m")
+        for k in (
+            "rate_hz",
+            "range_noise_m",
+            "dropout_prob",
+            "spurious_prob",
+            "min_range_m",
+            "max_range_m",
+        )
         if getattr(lo, k) is not None
     }
     if lo.columns is not None and spec.kind == "spinning":

@@ -37,8 +37,9 @@ from l2calib.recipe import load_recipe
 
 pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 
-#: The demo rig, far from identity so that "no initial guess" means something.
-RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
+#: Far from identity (134°), so that "no initial guess" means something, and no half-turn: the
+#: demo rig's 180° rotation is its own inverse, which hides a transform applied the wrong way.
+RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (-100.0, 40.0, 60.0)}
 BUDGET = [
     "train.max_iterations=25",
     "train.max_evaluations=800",

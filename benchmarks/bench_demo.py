@@ -1,0 +1,86 @@
+"""The README's main job, timed as a user runs it: ``l2calib demo`` in a fresh process.
+
+Run: ``python -m benchmarks.bench_demo [--reference NAME]`` (also part of ``make bench``).
+Reads the demo's ``calibration.yaml`` and the simulator's ``extrinsic_gt.yaml`` afterwards and
+writes the wall time (the whole process: simulation, reference, training, report), the error
+against the truth and the machine to ``benchmarks/results/demo.json`` (one entry per reference).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+import yaml
+from rich.console import Console
+from rich.table import Table
+
+from benchmarks.machine import machine_info
+
+RESULTS = Path(__file__).parent / "results" / "demo.json"
+
+
+def run_demo(reference: str, seed: int) -> dict:
+    """Runs ``l2calib demo`` once; returns its row (error, wall time, evaluations, machine)."""
+    from l2calib.outputs.calibration_file import read_extrinsic
+
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp) / "demo"
+        cmd = [sys.executable, "-m", "l2calib.cli.app", "demo", "--out", str(out)]
+        cmd += ["--seed", str(seed), "--reference", reference]
+        t0 = time.monotonic()
+        proc = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.monotonic() - t0
+        if proc.returncode != 0:
+            raise SystemExit(f"l2calib demo failed:\n{proc.stdout}\n{proc.stderr}")
+        T, _ = read_extrinsic(out / "calibration" / "calibration.yaml")
+        gt = yaml.safe_load((out / "simulated" / "extrinsic_gt.yaml").read_text())
+        written = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
+    T_true = np.asarray(gt["T_imu_lidar"])
+    cos = (np.trace(T_true[:3, :3].T @ T[:3, :3]) - 1) / 2
+    return {
+        "command": " ".join(["l2calib", *cmd[3:]]),
+        "reference": reference,
+        "seed": seed,
+        "t_err_cm": round(float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])) * 100, 3),
+        "r_err_deg": round(math.degrees(math.acos(max(-1.0, min(1.0, cos)))), 4),
+        "wall_s": round(wall, 1),
+        "evaluations": written.get("training", {}).get("evaluations"),
+        "warnings": written.get("uncertainty", {}).get("warnings", []),
+        "machine": machine_info(),
+    }
+
+
+def main() -> None:
+    """Runs the demo, prints a one-row table, merges the row into ``demo.json``."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--reference", default=None, help="the demo's --reference (its default)")
+    parser.add_argument("--seed", type=int, default=1, help="the demo's --seed (its default: 1)")
+    args, _ = parser.parse_known_args()  # `python -m benchmarks -- --quick` passes extras
+    from l2calib.cli.cmd_demo import DEFAULT_REFERENCE
+
+    row = run_demo(args.reference or DEFAULT_REFERENCE, args.seed)
+    table = Table(title="l2calib demo (whole process)")
+    for col in ("reference", "t cm", "r deg", "wall s", "evaluations", "cores / load"):
+        table.add_column(col)
+    m = row["machine"]
+    table.add_row(
+        row["reference"], f"{row['t_err_cm']:.2f}", f"{row['r_err_deg']:.3f}",
+        f"{row['wall_s']:.0f}", str(row["evaluations"]), f"{m['cores']} / {m['load']}",
+    )  # fmt: skip
+    Console().print(table)
+    old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {"rows": []}
+    same = (row["reference"], row["seed"])
+    rows = [r for r in old["rows"] if (r["reference"], r["seed"]) != same]
+    RESULTS.write_text(json.dumps({"benchmark": "bench_demo", "rows": [*rows, row]}, indent=1))
+
+
+if __name__ == "__main__":
+    main()

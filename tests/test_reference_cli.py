@@ -1,0 +1,68 @@
+"""``l2calib reference``: writes the reference of a bag as TUM and compares it with a file."""
+
+from __future__ import annotations
+
+import pytest
+from typer.testing import CliRunner
+
+from l2calib.cli.app import app
+from l2calib.io.trajectory_files import read_tum
+
+
+@pytest.fixture(scope="module")
+def small_bag(tmp_path_factory):
+    from l2calib.sim import SimConfig, simulate, write_run
+
+    run = simulate(
+        SimConfig.model_validate(
+            {
+                "duration_s": 5.0,
+                "seed": 2,
+                "motion": {"profile": "handheld"},
+                "lidar": {"model": "ouster-os1-16", "columns": 512},
+                "imu": {"model": "vn100"},
+            }
+        )
+    )
+    return write_run(run, tmp_path_factory.mktemp("sim"))
+
+
+def _invoke(*args: str):
+    return CliRunner(env={"COLUMNS": "200"}).invoke(app, ["reference", "simulator", *args])
+
+
+def test_whole_bag_with_kiss_icp_is_written_and_compared(small_bag, tmp_path):
+    out = tmp_path / "ref" / "traj.tum"
+    res = _invoke(
+        "--bag", str(small_bag["bag"]), "--out", str(out), "--all",
+        "--set", "reference.name=kiss-icp", "--compare", str(small_bag["gt_lidar"]),
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    traj = read_tum(out)
+    assert len(traj.stamps_ns) > 30  # 10 Hz over ~4 s after the warm-up
+    assert "APE RMSE" in res.output and "kiss-icp" in res.output
+
+
+def test_selected_segments_get_one_file_each(small_bag, tmp_path):
+    out = tmp_path / "traj.tum"
+    gt = str(small_bag["gt_lidar"])
+    res = _invoke(
+        "--bag", str(small_bag["bag"]), "--out", str(out), "--compare", gt,
+        "--set", "reference.name=gt-file", "--set", f"reference.options.path={gt}",
+        "--set", "selection.window_s=2", "--set", "selection.step_s=1",
+        "--set", "selection.budget_s=4",
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
+    files = sorted(tmp_path.glob("traj-*.tum"))
+    assert [f.name for f in files] == ["traj-01.tum", "traj-02.tum"]
+    assert not out.exists()
+    assert "0.00" in res.output  # the ground truth compared with itself
+
+
+def test_a_missing_compare_file_is_a_clear_error(small_bag, tmp_path):
+    res = _invoke(
+        "--bag", str(small_bag["bag"]), "--out", str(tmp_path / "t.tum"),
+        "--compare", str(tmp_path / "nope.tum"),
+    )  # fmt: skip
+    assert res.exit_code == 1
+    assert "nope.tum" in res.output and "fix:" in res.output
