@@ -18,8 +18,10 @@ ORDER = (
     "policies",
     "sim_realism",
     "references",
+    "reference_plumbing",
     "backends",
     "demo",
+    "e2e",
     "calibration",
     "tests",
 )

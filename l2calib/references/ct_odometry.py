@@ -284,11 +284,15 @@ class CtLidarOdometry:
         """Raises when the odometry has lost track, instead of returning a wrong reference.
 
         Lost: fewer than ``lost_inlier_ratio`` of the registration points on a map plane for
-        ``lost_scans`` scans in a row (after the first ``lost_grace_scans``, while the map is
-        young and much of each scan new), or a body rate / speed no rig reaches.
+        ``lost_scans`` scans in a row, or a body rate / speed no rig reaches. During the first
+        ``lost_grace_scans`` (the map is young and much of each scan new) only scans with almost
+        no point on the map (under a fifth of that ratio) count as poor.
         """
         o = self.o
-        poor = self.last_inlier_ratio < o.lost_inlier_ratio and k > o.lost_grace_scans
+        ratio = self.last_inlier_ratio
+        poor = ratio < o.lost_inlier_ratio and (
+            k > o.lost_grace_scans or ratio < o.lost_inlier_ratio / 5
+        )
         self._poor = self._poor + 1 if poor else 0
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
         if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
