@@ -38,6 +38,7 @@ from typing import Any
 import numpy as np
 import torch
 
+from benchmarks.machine import machine_info
 from l2calib import geometry as geo
 from l2calib.alignment import ape as aligned_ape
 from l2calib.alignment import pose_errors
@@ -270,8 +271,7 @@ def main() -> None:
         "quick": q,
         "python": platform.python_version(),
         "torch": torch.__version__,
-        "machine": platform.machine(),
-        "cpu_count": os.cpu_count(),
+        "machine": machine_info(),  # cores, CPU model, load at the start
         "torch_threads": torch.get_num_threads(),
         "omp_num_threads": os.environ.get("OMP_NUM_THREADS"),
         "sim": SIM,

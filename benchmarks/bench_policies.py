@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import itertools
 import json
-import platform
 import time
 from pathlib import Path
 
@@ -22,6 +21,7 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.machine import machine_info
 from l2calib.geometry import euler_rpy_to_matrix, matrix_to_quat, quat_normalize
 from l2calib_policies.bingham import Bingham
 from l2calib_policies.normaliser import bingham_log_normaliser
@@ -277,7 +277,7 @@ def main() -> None:
     console.print(table)
 
     out = {
-        "machine": platform.platform(),
+        "machine": machine_info(),
         "torch_threads": torch.get_num_threads(),
         "normaliser": acc,
         "sampler": samp,

@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -43,6 +42,7 @@ import torch
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.machine import machine_info
 from l2calib import geometry as geo
 from l2calib.alignment import ape
 from l2calib.data import NS_PER_S
@@ -247,12 +247,7 @@ def main() -> None:
                 "rows": rows,
                 "lever_arm_m": LEVER_M,
                 "cases_run": args.only or list(CASES),  # the others' rows: an earlier run's
-                "machine": {
-                    "platform": platform.platform(),
-                    "cpus": os.cpu_count(),
-                    "load_before": load_before,
-                    "load_after": os.getloadavg(),
-                },
+                "machine": {**machine_info(), "load_before": load_before},
             },
             indent=2,
         )

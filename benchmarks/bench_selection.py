@@ -16,6 +16,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.machine import machine_info
 from l2calib.recipe import SelectionConfig
 from l2calib.selection import select_windows
 from l2calib.selection.plot import plot_selection
@@ -102,7 +103,7 @@ def main() -> None:
             {
                 "benchmark": "selection",
                 "python": platform.python_version(),
-                "machine": platform.machine(),
+                "machine": machine_info(),
                 "rows": rows,
             },
             indent=1,

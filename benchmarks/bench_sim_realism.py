@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 from pathlib import Path
 
@@ -30,6 +29,7 @@ from rich.console import Console
 from rich.table import Table
 from scipy.spatial.transform import Rotation
 
+from benchmarks.machine import machine_info
 from l2calib.alignment import ape, associate, umeyama
 from l2calib.errors import L2CalibError
 from l2calib.references.kiss_icp_runner import KissIcpOptions, run_kiss_icp
@@ -203,7 +203,7 @@ def main() -> None:
                 "kiss_icp_options": KissIcpOptions().model_dump() | {"max_range_m": MAX_RANGE},
                 "tracking_cases": summary,
                 "rows": rows,
-                "machine": {"cpus": os.cpu_count(), "loadavg": os.getloadavg()},
+                "machine": machine_info(),
             },
             indent=2,
         )

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import os
-import platform
 import tempfile
 import time
 from pathlib import Path
@@ -18,6 +17,7 @@ from pathlib import Path
 from rich.console import Console
 from rich.table import Table
 
+from benchmarks.machine import machine_info
 from l2calib.sim import SimConfig, simulate, write_run
 
 TARGET_S = 60.0
@@ -99,12 +99,7 @@ def main() -> None:
                 "target_s": TARGET_S,
                 "passed": ok,
                 "rows": rows,
-                "machine": {
-                    "cpus": os.cpu_count(),
-                    "python": platform.python_version(),
-                    "loadavg_before": load_before,
-                    "loadavg_after": os.getloadavg(),
-                },
+                "machine": {**machine_info(), "loadavg_before": load_before},
             },
             indent=2,
         )

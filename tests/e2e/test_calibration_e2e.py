@@ -1,25 +1,26 @@
 """End to end: the product calibrates a simulated bag from no initial guess, to the truth.
 
-Each test simulates a hand-held rig (Ouster OS1-16 upside down and turned 90°, 12 cm off a
-VN100-class IMU), writes a real ROS1 bag and the LiDAR's ground-truth TUM file to disk, and runs
+Each test simulates a hand-held rig (Ouster OS1-16 turned 134° and 15 cm off a VN100-class IMU),
+writes a real ROS1 bag and the LiDAR's ground-truth TUM file to disk, and runs
 :func:`~l2calib.cli.cmd_calibrate.run_calibration` — the code behind ``l2calib calibrate``: bag
 reading, the ``gt-file`` reference plugin, the real backend, TorchRL's collector and
 ``ClipPPOLoss`` in :class:`~l2calib.train.ppo.PpoTrainer`, the refinement, the resolution probe
 and the output files. The budget is a fraction of a recipe's (25 PPO iterations of 32
-candidates on 8 s of data); measured on 2 cores (2026-12-02): IEKF 0.36-0.56 cm /
-0.07-0.12° (training seeds 0-2) in about a minute, GTSAM 0.39 cm / 0.06° in 1.5 min.
+candidates on 8 s of data); the margin over training seeds is measured by
+``python -m benchmarks.bench_e2e`` (``benchmarks/results/e2e.json``).
 
 What the tolerance (3 cm, 0.5°) catches, each checked once by breaking the code locally
-(2026-12-02; the broken run's error in brackets):
+(2026-12-02, IEKF; the broken run's error in brackets):
 
-* a reward blind to the trajectory error, e.g. a constant reward [RESULT_CONSTANT];
+* a reward blind to the trajectory error, e.g. a constant reward [15.3 cm / 134°: the mode
+  never leaves where it started];
 * a sign error in the extrinsic: the environment applying ``T_lidar_imu`` where
-  ``T_imu_lidar`` belongs [RESULT_SIGN];
-* a stuck policy: the optimiser never steps [RESULT_STUCK].
+  ``T_imu_lidar`` belongs [30.9 cm / 87°];
+* a stuck policy: the optimiser never steps [25.1 cm / 132°];
+* a reward that ignores the rotation term, as the paper's public code does [13.2 cm / 38°].
 
-A reward that ignores the rotation term (the paper's public code) is *not* caught here: on
-this well-excited motion a rotation error also misplaces the LiDAR positions, so the
-translation term alone still finds the rotation [RESULT_NO_ROTATION].
+The rig has no half-turn on purpose: a 180° rotation is its own inverse, and with the demo rig
+(180°, 0°, 90°) the sign error above went unnoticed (the refinement closed the 10 cm left).
 """
 
 from __future__ import annotations
