@@ -43,26 +43,30 @@ def test_whole_bag_with_kiss_icp_is_written_and_compared(small_bag, tmp_path):
     assert "APE RMSE" in res.output and "kiss-icp" in res.output
 
 
-def test_selected_segments_get_one_file_each(small_bag, tmp_path):
+def test_several_segments_get_one_file_each(small_bag, tmp_path):
     out = tmp_path / "traj.tum"
     gt = str(small_bag["gt_lidar"])
+    bag = str(small_bag["bag"])
     res = _invoke(
-        "--bag", str(small_bag["bag"]), "--out", str(out), "--compare", gt,
+        "--bag", bag, "--bag", bag, "--all", "--out", str(out), "--compare", gt,
         "--set", "reference.name=gt-file", "--set", f"reference.options.path={gt}",
-        "--set", "selection.window_s=2", "--set", "selection.step_s=1",
-        "--set", "selection.budget_s=4",
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     files = sorted(tmp_path.glob("traj-*.tum"))
-    assert [f.name for f in files] == ["traj-01.tum", "traj-02.tum"]
+    assert [f.name for f in files] == ["traj-01.tum", "traj-02.tum"]  # one per bag
     assert not out.exists()
+    assert len(read_tum(files[1]).stamps_ns) > 30
     assert "0.00" in res.output  # the ground truth compared with itself
 
 
-def test_a_missing_compare_file_is_a_clear_error(small_bag, tmp_path):
-    res = _invoke(
-        "--bag", str(small_bag["bag"]), "--out", str(tmp_path / "t.tum"),
-        "--compare", str(tmp_path / "nope.tum"),
-    )  # fmt: skip
-    assert res.exit_code == 1
-    assert "nope.tum" in res.output and "fix:" in res.output
+def test_a_missing_compare_file_is_a_clear_error(small_bag, tmp_path, capsys):
+    from l2calib.cli.app import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(
+            ["reference", "simulator", "--bag", str(small_bag["bag"]),
+             "--out", str(tmp_path / "t.tum"), "--compare", str(tmp_path / "nope.tum")]
+        )  # fmt: skip
+    assert exc.value.code == 1
+    err = capsys.readouterr().err
+    assert "nope.tum" in err and "no such file" in err
