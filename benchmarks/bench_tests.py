@@ -36,6 +36,7 @@ def main() -> None:
     closing = lines[-1] if lines else ""
     counts = {k: int(v) for v, k in re.findall(r"(\d+) (passed|failed|skipped|errors?)", closing)}
     slowest = [ln.strip() for ln in lines if re.match(r"^\d+\.\d+s (call|setup)", ln.strip())]
+    failed = [ln.split()[1] for ln in lines if ln.startswith(("FAILED ", "ERROR "))]
     row = {
         "benchmark": "bench_tests",
         "command": "python -m pytest -q",
@@ -45,6 +46,7 @@ def main() -> None:
         "passed": proc.returncode == 0 and wall <= TARGET_S,
         "counts": counts,
         "closing_line": closing,
+        "failed": failed,
         "slowest": slowest,
         "machine": before,
         "load_after": machine_info()["load"],

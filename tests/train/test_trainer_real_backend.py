@@ -25,7 +25,7 @@ from l2calib.train.ppo import PpoTrainer
 
 #: The demo rig: LiDAR upside down and turned 90°, 12 cm off the IMU (far from identity).
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
-BUDGET = ["train.candidates_per_iteration=16", "train.max_iterations=12", "train.workers=1"]
+BUDGET = ["train.candidates_per_iteration=16", "train.max_iterations=20", "train.workers=1"]
 PRIOR = [
     "policy.prior.translation_m=[0.16,-0.09,0.12]",
     "policy.prior.rpy_deg=[172,6,95]",
@@ -71,11 +71,12 @@ def test_reward_rises_and_the_mode_moves_towards_the_truth():
     finally:
         env.close()
     hist = outcome.history
-    assert len(hist) == 12 and outcome.evaluations == 12 * 16
-    first = np.mean([r.reward_mean for r in hist[:3]])
-    last = np.mean([r.reward_mean for r in hist[-3:]])
-    assert last > first + 0.05, (first, last)  # the candidates got better, not just the mode
-    rot0, trans0 = _mode_errors(hist[0], run.T_imu_lidar)
-    rot, trans = _mode_errors(hist[-1], run.T_imu_lidar)
-    assert rot < 0.5 * rot0, (rot0, rot)
-    assert trans < 0.15, (trans0, trans)  # 8-15 cm at first; a run-away mode goes further
+    assert len(hist) == 20 and outcome.evaluations == 20 * 16
+    # Per-iteration figures are noisy (16 candidates): compare the first and last few.
+    first = np.mean([r.reward_mean for r in hist[:5]])
+    last = np.mean([r.reward_mean for r in hist[-5:]])
+    assert last > first + 0.03, (first, last)  # the candidates got better, not just the mode
+    rot0, trans0 = np.mean([_mode_errors(r, run.T_imu_lidar) for r in hist[:3]], axis=0)
+    rot, trans = np.mean([_mode_errors(r, run.T_imu_lidar) for r in hist[-3:]], axis=0)
+    assert rot < 0.35 * rot0, (rot0, rot)  # measured 6.6° -> 0.9° (simulator v2)
+    assert trans < 0.8 * trans0, (trans0, trans)  # measured 11.6 -> 5.4 cm
