@@ -56,8 +56,6 @@ class VoxelPlaneMap:
         max_plane_rms_m: Largest RMS distance of the neighbours from their plane (m).
         min_spread_ratio: Smallest ratio of the second to the largest principal spread of the
             neighbours (rejects line-like neighbourhoods).
-        wide_neighbours: Points per plane fit of the second, wide association (0: none).
-        wide_radius_m: Farthest neighbour of a wide plane fit (m).
     """
 
     def __init__(
@@ -67,16 +65,12 @@ class VoxelPlaneMap:
         neighbours: int = 12,
         max_plane_rms_m: float = 0.05,
         min_spread_ratio: float = 0.2,
-        wide_neighbours: int = 0,
-        wide_radius_m: float = 3.0,
     ) -> None:
         self.voxel_m = voxel_m
         self.radius_m = radius_m
         self.neighbours = neighbours
         self.max_plane_rms_m = max_plane_rms_m
         self.min_spread_ratio = min_spread_ratio
-        self.wide_neighbours = wide_neighbours
-        self.wide_radius_m = wide_radius_m
         self.points = np.zeros((0, 3))
         self.keys = np.zeros(0, np.int64)
         self._tree: cKDTree | None = None
@@ -104,25 +98,9 @@ class VoxelPlaneMap:
         """Fits a plane to the map neighbours of each query point ``[N, 3]``.
 
         A query keeps its plane if all ``neighbours`` lie within ``max_distance_m`` of it, the
-        neighbourhood is planar (RMS below ``max_plane_rms_m``) and not line-like. Queries
-        without one then try ``wide_neighbours`` within ``wide_radius_m`` (when set): sparse
-        16-beam rings on the ground are metres apart, so only a wide patch spans two of them.
+        neighbourhood is planar (RMS below ``max_plane_rms_m``) and not line-like.
         """
-        fine = self._fit(query_world, self.neighbours, max_distance_m)
-        if not self.wide_neighbours or len(fine.index) == len(query_world):
-            return fine
-        rest = np.setdiff1d(np.arange(len(query_world)), fine.index, assume_unique=True)
-        wide = self._fit(query_world[rest], self.wide_neighbours, self.wide_radius_m)
-        index = np.concatenate([fine.index, rest[wide.index]])
-        order = np.argsort(index)
-        return Planes(
-            index[order],
-            np.concatenate([fine.normal, wide.normal])[order],
-            np.concatenate([fine.offset, wide.offset])[order],
-        )
-
-    def _fit(self, query_world: np.ndarray, k: int, max_distance_m: float) -> Planes:
-        """Planes of ``k`` neighbours within ``max_distance_m`` (:meth:`associate`)."""
+        k = self.neighbours
         empty = Planes(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
         if len(self.points) < k or len(query_world) == 0:
             return empty

@@ -190,13 +190,7 @@ class CtLidarOdometry:
     def _new_map(self) -> VoxelPlaneMap:
         o = self.o
         return VoxelPlaneMap(
-            o.map_voxel_m,
-            o.map_radius_m,
-            o.neighbours,
-            o.max_plane_rms_m,
-            o.min_spread_ratio,
-            o.wide_neighbours,
-            o.wide_radius_m,
+            o.map_voxel_m, o.map_radius_m, o.neighbours, o.max_plane_rms_m, o.min_spread_ratio
         )
 
     def _prepare(self, scan: LidarScan) -> _Scan:

@@ -110,10 +110,6 @@ class CtLidarOptions(CacheOptions):
     min_spread_ratio: float = Field(
         0.2, gt=0, lt=1, description="rejects line-like neighbourhoods (2nd / 1st spread)"
     )
-    wide_neighbours: int = Field(
-        0, ge=0, description="map points per plane fit of a second, wide association (0: none)"
-    )
-    wide_radius_m: float = Field(3.0, gt=0, description="farthest neighbour of a wide fit (m)")
     max_correspondence_m: float = Field(1.0, gt=0, description="first association gate (m)")
     robust_scale_start_m: float = Field(0.3, gt=0, description="Geman-McClure scale, first (m)")
     robust_scale_m: float = Field(0.05, gt=0, description="Geman-McClure scale, last (m)")
