@@ -45,6 +45,10 @@ CASES = {
     "hh64-5": ("handheld", "ouster-os1-64", "hall", 5),
     "ugv32-6": ("ugv", "velodyne-vlp-32c", "urban", 6),
     "uavxt32-7": ("uav", "hesai-pandar-xt32", "urban", 7),
+    "hhvlp16-1": ("handheld", "velodyne-vlp-16", "urban", 1),
+    "hhvlp16-2": ("handheld", "velodyne-vlp-16", "urban", 2),
+    "hhvlp32-1": ("handheld", "velodyne-vlp-32c", "urban", 1),
+    "hhxt32-1": ("handheld", "hesai-pandar-xt32", "urban", 1),
 }
 
 
@@ -97,12 +101,14 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
     scans = run.sequence().segment().scans
     odo = CtLidarOdometry(CtLidarOptions.model_validate(options))
     solved: list = []
+    olds: list = []  # per scan: median distance to the old map (m), NaN if not checked
     check = odo._check_tracking
 
     def recording_check(k, stamps, m):  # noqa: ANN001, ANN202
         if k == 1:
             solved.append(odo._start_motion)
         solved.append(m)
+        olds.append(odo.last_old_residual)
         check(k, stamps, m)
 
     odo._check_tracking = recording_check
@@ -135,6 +141,10 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
         "lost": lost,
         "scans": f"{len(motions)}/{len(scans)}",
         "s_per_scan": round(seconds / len(scans), 3),
+        "old_med_cm_p50_max": [
+            round(100 * float(np.nanmedian(olds)), 2) if np.isfinite(olds).any() else None,
+            round(100 * float(np.nanmax(olds)), 2) if np.isfinite(olds).any() else None,
+        ],
     }
     if terms:
         ends = np.array([s.stamp_ns for s in scans[1 : len(motions) + 1]], np.int64)

@@ -274,28 +274,56 @@ class CtLidarOdometry:
                     break
             ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)  # points on a plane
         self.last_inlier_ratio = ratio
+        self.last_info = H - info_prior  # the data's information
         P = np.linalg.inv(H)
         return m, 0.5 * (P + P.T)
 
-    def _insert(self, s: _Scan, m: ScanMotion) -> None:
-        self.map.insert(m.transform(s.map_points, s.map_tau))
+    def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
+        self.map.insert(m.transform(s.map_points, s.map_tau), born)
+
+    def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> float:
+        """Median distance (m) of the scan's points to planes of the old map, or NaN.
+
+        Old: map points born ``lost_map_age_s`` or longer ago; NaN when fewer than
+        ``lost_old_points`` of the scan's points find a plane there.
+
+        A drift shows here: the recent map drifts along with the poses that built it, so the scan
+        fits it well (the inlier ratio stays high), but the old map stays where it was.
+        """
+        o = self.o
+        before = np.floor(2 * (now_s - o.lost_map_age_s)) / 2  # the old tree lives 0.5 s
+        if before < 0:
+            return float("nan")
+        world = m.transform(s.points, s.tau)
+        planes = self.map.associate_older(world, o.max_correspondence_m, before)
+        if len(planes.index) < o.lost_old_points:
+            return float("nan")
+        r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
+        return float(np.median(np.abs(r)))
 
     def _check_tracking(self, k: int, stamps: np.ndarray, m: ScanMotion) -> None:
         """Raises when the odometry has lost track, instead of returning a wrong reference.
 
-        Lost: fewer than ``lost_inlier_ratio`` of the registration points on a map plane for
-        ``lost_scans`` scans in a row (after the first ``lost_grace_scans``, while the map is
-        young and much of each scan new), or a body rate / speed no rig reaches.
+        Lost, for ``lost_scans`` scans in a row: fewer than ``lost_inlier_ratio`` of the
+        registration points on a map plane (after the first ``lost_grace_scans``, while the map
+        is young and much of each scan new), or a median distance above ``lost_old_residual_m``
+        to the planes of the map points older than ``lost_map_age_s`` (a drift); or at once, a
+        body rate / speed no rig reaches.
         """
         o = self.o
         poor = self.last_inlier_ratio < o.lost_inlier_ratio and k > o.lost_grace_scans
         self._poor = self._poor + 1 if poor else 0
+        drift = self.last_old_residual > o.lost_old_residual_m  # False for NaN
+        self._drift = self._drift + 1 if drift else 0
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
-        if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
+        lost = max(self._poor, self._drift) >= o.lost_scans
+        if lost or absurd or not np.all(np.isfinite(m.t_b)):
             when = (stamps[k] - stamps[0]) / NS_PER_S
             raise ReferenceLostTrackError(
                 f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
-                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, body rate "
+                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, "
+                f"{100 * self.last_old_residual:.1f} cm median off the map of "
+                f"{o.lost_map_age_s:g} s before, body rate "
                 f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
                 fix="ct-lidar is experimental and known to lose track with 16-beam LiDARs on "
                 "some motions (docs/references.md); use reference.name=kiss-icp, a gt-file or "
@@ -314,15 +342,17 @@ class CtLidarOdometry:
         """Inserts scan 0 with ``start`` and solves scans ``1..last`` (inclusive)."""
         self.map = self._new_map()
         self._insert(prepared[0], start)
-        self._poor = 0
+        self._poor = self._drift = 0
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
             pred, P_pred = self._predict(motions[-1], P, dt)
             m, P = self._solve(prepared[k], pred, P_pred)
+            now = float(stamps[k] - stamps[0]) / NS_PER_S
+            self.last_old_residual = self._old_residual(prepared[k], m, now)
             self._check_tracking(k, stamps, m)
             motions.append(m)
-            self._insert(prepared[k], m)
+            self._insert(prepared[k], m, now)
             self.map.crop(m.t_b)
             if on_scan is not None:
                 on_scan(k)

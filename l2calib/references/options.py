@@ -137,6 +137,17 @@ class CtLidarOptions(CacheOptions):
     )
     lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
     lost_grace_scans: int = Field(10, ge=0, description="no poor-scan verdict on the first ones")
+    lost_map_age_s: float = Field(
+        2.0, gt=0, description="drift check: each scan against the map points this old or older (s)"
+    )
+    lost_old_residual_m: float = Field(
+        0.03,
+        gt=0,
+        description="drift check: a median distance to the old map's planes above this is poor (m)",
+    )
+    lost_old_points: int = Field(
+        50, ge=10, description="drift check: fewest points on old planes for a verdict"
+    )
     max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
     max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
     poses_per_scan: int = Field(4, ge=1, description="reference poses written per scan")
