@@ -45,6 +45,8 @@ CASES = {
     "hh64-5": ("handheld", "ouster-os1-64", "hall", 5),
     "ugv32-6": ("ugv", "velodyne-vlp-32c", "urban", 6),
     "uavxt32-7": ("uav", "hesai-pandar-xt32", "urban", 7),
+    "uavvlp16-5": ("uav", "velodyne-vlp-16", "hall", 5),
+    "uavvlp16-6": ("uav", "velodyne-vlp-16", "urban", 6),
     "hhvlp16-1": ("handheld", "velodyne-vlp-16", "urban", 1),
     "hhvlp16-2": ("handheld", "velodyne-vlp-16", "urban", 2),
     "hhvlp32-1": ("handheld", "velodyne-vlp-32c", "urban", 1),
@@ -102,6 +104,7 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
     odo = CtLidarOdometry(CtLidarOptions.model_validate(options))
     solved: list = []
     olds: list = []  # per scan: median distance to the old map (m), NaN if not checked
+    infos: list = []  # per scan: weakest information of the old map's planes (points)
     check = odo._check_tracking
 
     def recording_check(k, stamps, m):  # noqa: ANN001, ANN202
@@ -109,6 +112,7 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
             solved.append(odo._start_motion)
         solved.append(m)
         olds.append(odo.last_old_residual)
+        infos.append(odo.last_old_info)
         check(k, stamps, m)
 
     odo._check_tracking = recording_check
@@ -145,7 +149,17 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
             round(100 * float(np.nanmedian(olds)), 2) if np.isfinite(olds).any() else None,
             round(100 * float(np.nanmax(olds)), 2) if np.isfinite(olds).any() else None,
         ],
+        "old_info_min_p10_p50": [
+            round(float(np.nanpercentile(infos, q)), 1) if np.isfinite(infos).any() else None
+            for q in (0, 10, 50)
+        ],
     }
+    low = np.array(infos) < odo.o.lost_old_info
+    longest = run_len = 0
+    for x in low:
+        run_len = run_len + 1 if x else 0
+        longest = max(longest, run_len)
+    row["old_unverified_longest_scans"] = longest
     if terms:
         ends = np.array([s.stamp_ns for s in scans[1 : len(motions) + 1]], np.int64)
         if len(ends) < len(motions):

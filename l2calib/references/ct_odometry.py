@@ -150,7 +150,7 @@ class CtLidarOdometry:
 
     Scan to scan it is an iterated Kalman filter on the 18-parameter motion: the prediction is
     the previous motion carried to the next scan start (:meth:`ScanMotion.propagate`) with its
-    covariance plus process noise (random walks of every block, mostly of ``α`` and ``a``), and the
+    covariance plus process noise (random walks of every block), and the
     update is the Levenberg–Marquardt solve of prior plus point-to-plane terms. The full covariance
     matters: with diagonal priors the start position and the velocity trade against each other
     from scan to scan and oscillate.
@@ -189,9 +189,12 @@ class CtLidarOdometry:
 
     def _new_map(self) -> VoxelPlaneMap:
         o = self.o
-        return VoxelPlaneMap(
+        vmap = VoxelPlaneMap(
             o.map_voxel_m, o.map_radius_m, o.neighbours, o.max_plane_rms_m, o.min_spread_ratio
         )
+        if o.coarse_voxel_m > 0:
+            vmap.add_coarse(o.coarse_voxel_m, o.coarse_gate_m)
+        return vmap
 
     def _prepare(self, scan: LidarScan) -> _Scan:
         o = self.o
@@ -281,25 +284,33 @@ class CtLidarOdometry:
     def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
         self.map.insert(m.transform(s.map_points, s.map_tau), born)
 
-    def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> float:
-        """Median distance (m) of the scan's points to planes of the old map, or NaN.
+    def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
+        """How the scan fits the old map: median distance (m) and weakest information.
 
-        Old: map points born ``lost_map_age_s`` or longer ago; NaN when fewer than
-        ``lost_old_points`` of the scan's points find a plane there.
+        Old: map points born ``lost_map_age_s`` or longer ago. The median is over the scan's
+        points that find a plane there (NaN when fewer than ``lost_old_points``); the information
+        is the smallest eigenvalue of ``Σ n nᵀ`` over those within 10 cm of their plane: how many
+        points pin the scan's position along its least constrained direction (NaN before the map
+        is old enough).
 
         A drift shows here: the recent map drifts along with the poses that built it, so the scan
-        fits it well (the inlier ratio stays high), but the old map stays where it was.
+        fits it well (the inlier ratio stays high), but the old map stays where it was; unless
+        the old map does not constrain the direction of the drift (a street canyon along its
+        axis, a UAV's height above unseen ground), which the information shows.
         """
         o = self.o
+        nan = float("nan")
         before = np.floor(2 * (now_s - o.lost_map_age_s)) / 2  # the old tree lives 0.5 s
         if before < 0:
-            return float("nan")
+            return nan, nan
         world = m.transform(s.points, s.tau)
         planes = self.map.associate_older(world, o.max_correspondence_m, before)
-        if len(planes.index) < o.lost_old_points:
-            return float("nan")
         r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
-        return float(np.median(np.abs(r)))
+        n = planes.normal[np.abs(r) < 0.1]
+        info = float(np.linalg.eigvalsh(n.T @ n)[0])
+        if len(planes.index) < o.lost_old_points:
+            return nan, info
+        return float(np.median(np.abs(r))), info
 
     def _check_tracking(self, k: int, stamps: np.ndarray, m: ScanMotion) -> None:
         """Raises when the odometry has lost track, instead of returning a wrong reference.
@@ -307,23 +318,32 @@ class CtLidarOdometry:
         Lost, for ``lost_scans`` scans in a row: fewer than ``lost_inlier_ratio`` of the
         registration points on a map plane (after the first ``lost_grace_scans``, while the map
         is young and much of each scan new), or a median distance above ``lost_old_residual_m``
-        to the planes of the map points older than ``lost_map_age_s`` (a drift); or at once, a
-        body rate / speed no rig reaches.
+        to the planes of the map points older than ``lost_map_age_s`` (a drift); for
+        ``lost_unverified_s``, an old map that pins the scan's position along some direction by
+        fewer than ``lost_old_info`` points (a drift there would go unseen); at once, a body rate
+        / speed no rig reaches.
         """
         o = self.o
         poor = self.last_inlier_ratio < o.lost_inlier_ratio and k > o.lost_grace_scans
         self._poor = self._poor + 1 if poor else 0
         drift = self.last_old_residual > o.lost_old_residual_m  # False for NaN
         self._drift = self._drift + 1 if drift else 0
+        when = (stamps[k] - stamps[0]) / NS_PER_S
+        if not self.last_old_info < o.lost_old_info:  # verified, or NaN: not checked yet
+            self._unverified_since = None
+        elif self._unverified_since is None:
+            self._unverified_since = when
+        unverified = self._unverified_since is not None
+        unseen = unverified and when - self._unverified_since >= o.lost_unverified_s
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
-        lost = max(self._poor, self._drift) >= o.lost_scans
+        lost = max(self._poor, self._drift) >= o.lost_scans or unseen
         if lost or absurd or not np.all(np.isfinite(m.t_b)):
-            when = (stamps[k] - stamps[0]) / NS_PER_S
             raise ReferenceLostTrackError(
                 f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
                 f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, "
                 f"{100 * self.last_old_residual:.1f} cm median off the map of "
-                f"{o.lost_map_age_s:g} s before, body rate "
+                f"{o.lost_map_age_s:g} s before, which pins it by {self.last_old_info:.0f} points "
+                f"along its weakest direction, body rate "
                 f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
                 fix="ct-lidar is experimental and known to lose track with 16-beam LiDARs on "
                 "some motions (docs/references.md); use reference.name=kiss-icp, a gt-file or "
@@ -343,13 +363,14 @@ class CtLidarOdometry:
         self.map = self._new_map()
         self._insert(prepared[0], start)
         self._poor = self._drift = 0
+        self._unverified_since: float | None = None
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
             pred, P_pred = self._predict(motions[-1], P, dt)
             m, P = self._solve(prepared[k], pred, P_pred)
             now = float(stamps[k] - stamps[0]) / NS_PER_S
-            self.last_old_residual = self._old_residual(prepared[k], m, now)
+            self.last_old_residual, self.last_old_info = self._old_residual(prepared[k], m, now)
             self._check_tracking(k, stamps, m)
             motions.append(m)
             self._insert(prepared[k], m, now)

@@ -110,6 +110,10 @@ class CtLidarOptions(CacheOptions):
     min_spread_ratio: float = Field(
         0.2, gt=0, lt=1, description="rejects line-like neighbourhoods (2nd / 1st spread)"
     )
+    coarse_voxel_m: float = Field(
+        0.0, ge=0, description="0: off; else also fit planes in a map of this voxel (m)"
+    )
+    coarse_gate_m: float = Field(3.0, gt=0, description="... within this distance (m)")
     max_correspondence_m: float = Field(1.0, gt=0, description="first association gate (m)")
     robust_scale_start_m: float = Field(0.3, gt=0, description="Geman-McClure scale, first (m)")
     robust_scale_m: float = Field(0.05, gt=0, description="Geman-McClure scale, last (m)")
@@ -120,15 +124,20 @@ class CtLidarOptions(CacheOptions):
     noise_rot_deg: float = Field(0.5, gt=0, description="process noise of the attitude (deg/√s)")
     noise_pos_m: float = Field(0.01, gt=0, description="... of the position (m/√s)")
     noise_rate_rad_s: float = Field(1.0, gt=0, description="... of the body rate (rad/s/√s)")
-    noise_alpha_rad_s2: float = Field(20.0, gt=0, description="... of α (rad/s²/√s)")
+    noise_alpha_rad_s2: float = Field(
+        2.0,
+        gt=0,
+        description="... of α (rad/s²/√s); α and a are weakly seen in one scan: more noise lets "
+        "them trade with ω and v at a swing's onset (16-beam hand-held runs lost track at 20)",
+    )
     noise_velocity_m_s: float = Field(0.5, gt=0, description="... of the velocity (m/s/√s)")
-    noise_accel_m_s2: float = Field(15.0, gt=0, description="... of a (m/s²/√s)")
+    noise_accel_m_s2: float = Field(1.0, gt=0, description="... of a (m/s²/√s)")
     initial_rate_rad_s: float = Field(
         3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"
     )
-    initial_alpha_rad_s2: float = Field(30.0, gt=0, description="... α (rad/s²)")
+    initial_alpha_rad_s2: float = Field(2.0, gt=0, description="... α (rad/s²)")
     initial_velocity_m_s: float = Field(2.0, gt=0, description="... velocity (m/s)")
-    initial_accel_m_s2: float = Field(10.0, gt=0, description="... a (m/s²)")
+    initial_accel_m_s2: float = Field(1.0, gt=0, description="... a (m/s²)")
     bootstrap_rounds: int = Field(
         4, ge=1, description="iterated deskew rounds of the first two scans (first scan's motion)"
     )
@@ -147,6 +156,15 @@ class CtLidarOptions(CacheOptions):
     )
     lost_old_points: int = Field(
         50, ge=10, description="drift check: fewest points on old planes for a verdict"
+    )
+    lost_old_info: float = Field(
+        10.0,
+        ge=0,
+        description="drift check: old planes pinning the scan's weakest direction by fewer "
+        "points leave a drift there unseen (unverified scan)",
+    )
+    lost_unverified_s: float = Field(
+        1.0, gt=0, description="drift check: unverified for this long in a row means lost (s)"
     )
     max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
     max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
