@@ -104,6 +104,7 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
     odo = CtLidarOdometry(CtLidarOptions.model_validate(options))
     solved: list = []
     olds: list = []  # per scan: median distance to the old map (m), NaN if not checked
+    ratios: list = []  # per scan: inlier ratio
     infos: list = []  # per scan: weakest information of the old map's planes (points)
     check = odo._check_tracking
 
@@ -112,6 +113,7 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
             solved.append(odo._start_motion)
         solved.append(m)
         olds.append(odo.last_old_residual)
+        ratios.append(odo.last_inlier_ratio)
         infos.append(odo.last_old_info)
         check(k, stamps, m)
 
@@ -160,6 +162,10 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
         run_len = run_len + 1 if x else 0
         longest = max(longest, run_len)
     row["old_unverified_longest_scans"] = longest
+    row["inlier_min_first10_after"] = [
+        round(min(ratios[:10]), 2),
+        round(min(ratios[10:] or [1]), 2),
+    ]
     if terms:
         ends = np.array([s.stamp_ns for s in scans[1 : len(motions) + 1]], np.int64)
         if len(ends) < len(motions):

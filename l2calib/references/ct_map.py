@@ -76,20 +76,6 @@ class VoxelPlaneMap:
         self.born = np.zeros(0)  # insertion time of each point (s, the caller's clock)
         self._tree: cKDTree | None = None
         self._old: tuple[float, cKDTree | None, np.ndarray] | None = None
-        self.coarse: VoxelPlaneMap | None = None  # see add_coarse
-        self.coarse_gate_m = 0.0
-
-    def add_coarse(self, voxel_m: float, gate_m: float) -> None:
-        """Also fits planes in a coarser copy of the map for the queries without a fine plane.
-
-        With a 16-beam LiDAR high above the ground, the ground is rings metres apart: the fine
-        map's nearest neighbours all lie on one ring (line-like, rejected), while in a map of
-        one point per ``voxel_m`` they reach the next ring within ``gate_m``.
-        """
-        self.coarse = VoxelPlaneMap(
-            voxel_m, self.radius_m, self.neighbours, self.max_plane_rms_m, self.min_spread_ratio
-        )
-        self.coarse_gate_m = gate_m
 
     def __len__(self) -> int:
         return len(self.points)
@@ -103,8 +89,6 @@ class VoxelPlaneMap:
         self.keys = np.concatenate([self.keys, keys[new]])
         self.born = np.concatenate([self.born, np.full(int(new.sum()), born)])
         self._tree = None
-        if self.coarse is not None:
-            self.coarse.insert(points_world, born)
 
     def crop(self, centre: np.ndarray) -> None:
         """Drops points farther than ``radius_m`` from ``centre`` ``[3]``."""
@@ -112,8 +96,6 @@ class VoxelPlaneMap:
         if not keep.all():
             self.points, self.keys, self.born = self.points[keep], self.keys[keep], self.born[keep]
             self._tree = None  # the old points' tree may keep cropped points: far, harmless
-        if self.coarse is not None:
-            self.coarse.crop(centre)
 
     def associate(self, query_world: np.ndarray, max_distance_m: float) -> Planes:
         """Fits a plane to the map neighbours of each query point ``[N, 3]``.
@@ -123,16 +105,7 @@ class VoxelPlaneMap:
         """
         if self._tree is None and len(self.points):
             self._tree = cKDTree(self.points)
-        planes = self._fit(self._tree, self.points, query_world, max_distance_m)
-        if self.coarse is None:
-            return planes
-        rest = np.setdiff1d(np.arange(len(query_world)), planes.index)
-        extra = self.coarse.associate(query_world[rest], max(self.coarse_gate_m, max_distance_m))
-        return Planes(
-            np.concatenate([planes.index, rest[extra.index]]),
-            np.concatenate([planes.normal, extra.normal]),
-            np.concatenate([planes.offset, extra.offset]),
-        )
+        return self._fit(self._tree, self.points, query_world, max_distance_m)
 
     def associate_older(
         self, query_world: np.ndarray, max_distance_m: float, before: float

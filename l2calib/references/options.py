@@ -110,10 +110,6 @@ class CtLidarOptions(CacheOptions):
     min_spread_ratio: float = Field(
         0.2, gt=0, lt=1, description="rejects line-like neighbourhoods (2nd / 1st spread)"
     )
-    coarse_voxel_m: float = Field(
-        0.0, ge=0, description="0: off; else also fit planes in a map of this voxel (m)"
-    )
-    coarse_gate_m: float = Field(3.0, gt=0, description="... within this distance (m)")
     max_correspondence_m: float = Field(1.0, gt=0, description="first association gate (m)")
     robust_scale_start_m: float = Field(0.3, gt=0, description="Geman-McClure scale, first (m)")
     robust_scale_m: float = Field(0.05, gt=0, description="Geman-McClure scale, last (m)")
@@ -145,7 +141,12 @@ class CtLidarOptions(CacheOptions):
         0.25, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
     )
     lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
-    lost_grace_scans: int = Field(10, ge=0, description="no poor-scan verdict on the first ones")
+    lost_grace_scans: int = Field(
+        10, ge=0, description="the first scans are poor only below lost_young_inlier_ratio"
+    )
+    lost_young_inlier_ratio: float = Field(
+        0.05, ge=0, le=1, description="... (the map is young, much of each scan new)"
+    )
     lost_map_age_s: float = Field(
         2.0, gt=0, description="drift check: each scan against the map points this old or older (s)"
     )
