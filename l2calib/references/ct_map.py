@@ -73,26 +73,29 @@ class VoxelPlaneMap:
         self.min_spread_ratio = min_spread_ratio
         self.points = np.zeros((0, 3))
         self.keys = np.zeros(0, np.int64)
+        self.born = np.zeros(0)  # insertion time of each point (s, the caller's clock)
         self._tree: cKDTree | None = None
+        self._old: tuple[float, cKDTree | None, np.ndarray] | None = None
 
     def __len__(self) -> int:
         return len(self.points)
 
-    def insert(self, points_world: np.ndarray) -> None:
-        """Adds the points whose voxels are still empty."""
+    def insert(self, points_world: np.ndarray, born: float = 0.0) -> None:
+        """Adds the points whose voxels are still empty, stamped ``born`` (s)."""
         keys = voxel_keys(points_world, self.voxel_m)
         keys, first = np.unique(keys, return_index=True)
         new = ~np.isin(keys, self.keys, assume_unique=True)
         self.points = np.concatenate([self.points, points_world[first[new]]])
         self.keys = np.concatenate([self.keys, keys[new]])
+        self.born = np.concatenate([self.born, np.full(int(new.sum()), born)])
         self._tree = None
 
     def crop(self, centre: np.ndarray) -> None:
         """Drops points farther than ``radius_m`` from ``centre`` ``[3]``."""
         keep = np.einsum("ij,ij->i", self.points - centre, self.points - centre) <= self.radius_m**2
         if not keep.all():
-            self.points, self.keys = self.points[keep], self.keys[keep]
-            self._tree = None
+            self.points, self.keys, self.born = self.points[keep], self.keys[keep], self.born[keep]
+            self._tree = None  # the old points' tree may keep cropped points: far, harmless
 
     def associate(self, query_world: np.ndarray, max_distance_m: float) -> Planes:
         """Fits a plane to the map neighbours of each query point ``[N, 3]``.
@@ -100,18 +103,39 @@ class VoxelPlaneMap:
         A query keeps its plane if all ``neighbours`` lie within ``max_distance_m`` of it, the
         neighbourhood is planar (RMS below ``max_plane_rms_m``) and not line-like.
         """
+        if self._tree is None and len(self.points):
+            self._tree = cKDTree(self.points)
+        return self._fit(self._tree, self.points, query_world, max_distance_m)
+
+    def associate_older(
+        self, query_world: np.ndarray, max_distance_m: float, before: float
+    ) -> Planes:
+        """As :meth:`associate`, with only the map points born at ``before`` (s) or earlier.
+
+        Their tree is kept until ``before`` or the map's crop changes.
+        """
+        if self._old is None or self._old[0] != before:
+            pts = self.points[self.born <= before]
+            self._old = (before, cKDTree(pts) if len(pts) else None, pts)
+        return self._fit(self._old[1], self._old[2], query_world, max_distance_m)
+
+    def _fit(
+        self,
+        tree: cKDTree | None,
+        points: np.ndarray,
+        query_world: np.ndarray,
+        max_distance_m: float,
+    ) -> Planes:
         k = self.neighbours
         empty = Planes(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
-        if len(self.points) < k or len(query_world) == 0:
+        if tree is None or len(points) < k or len(query_world) == 0:
             return empty
-        if self._tree is None:
-            self._tree = cKDTree(self.points)
-        dist, nn = self._tree.query(query_world, k=k, distance_upper_bound=max_distance_m)
+        dist, nn = tree.query(query_world, k=k, distance_upper_bound=max_distance_m)
         ok = np.isfinite(dist[:, -1])
         if not ok.any():
             return empty
         idx = np.flatnonzero(ok)
-        nbr = self.points[nn[idx]]  # [M, k, 3]
+        nbr = points[nn[idx]]  # [M, k, 3]
         centre = nbr.mean(axis=1)
         d = nbr - centre[:, None]
         cov = np.einsum("mki,mkj->mij", d, d) / k

@@ -37,104 +37,10 @@ from scipy.spatial.transform import Rotation
 from l2calib.data import NS_PER_S, LidarScan
 from l2calib.errors import ReferenceLostTrackError, ReferenceSourceError
 from l2calib.references.ct_map import VoxelPlaneMap, voxel_subsample
+from l2calib.references.ct_motion import ScanMotion, prior_residual, right_jacobian
 from l2calib.references.options import CtLidarOptions
 
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[N, 3, 3]`` cross-product matrices of ``v`` ``[N, 3]``."""
-    z = np.zeros(len(v))
-    return np.stack(
-        [z, -v[:, 2], v[:, 1], v[:, 2], z, -v[:, 0], -v[:, 1], v[:, 0], z], axis=1
-    ).reshape(-1, 3, 3)
-
-
-def right_jacobian(phi: np.ndarray) -> np.ndarray:
-    """``[N, 3, 3]`` right Jacobian of SO(3) at rotation vectors ``phi`` ``[N, 3]``."""
-    th = np.linalg.norm(phi, axis=1)
-    small = th < 1e-6
-    ths = np.where(small, 1.0, th)
-    c1 = np.where(small, 0.5 - th**2 / 24, (1 - np.cos(ths)) / ths**2)
-    c2 = np.where(small, 1 / 6 - th**2 / 120, (ths - np.sin(ths)) / ths**3)
-    K = _skew(phi)
-    return np.eye(3) - c1[:, None, None] * K + c2[:, None, None] * (K @ K)
-
-
-@dataclass(frozen=True)
-class ScanMotion:
-    """The motion of one scan (module docstring); ``R_b`` ``[3, 3]``, the rest ``[3]``."""
-
-    R_b: np.ndarray
-    t_b: np.ndarray
-    omega: np.ndarray
-    alpha: np.ndarray
-    v: np.ndarray
-    a: np.ndarray
-
-    def rotvec(self, tau: np.ndarray) -> np.ndarray:
-        """``[N, 3]`` rotation vector ``τω + τ²α`` at times ``tau`` ``[N]`` (s)."""
-        return tau[:, None] * self.omega + (tau**2)[:, None] * self.alpha
-
-    def poses(self, tau: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``R [N, 3, 3]`` and ``t [N, 3]`` of ``T_world_lidar`` at ``tau`` ``[N]`` (s)."""
-        R = self.R_b @ Rotation.from_rotvec(self.rotvec(tau)).as_matrix()
-        t = self.t_b + tau[:, None] * self.v + (tau**2)[:, None] * self.a
-        return R, t
-
-    def transform(self, points: np.ndarray, tau: np.ndarray) -> np.ndarray:
-        """``[N, 3]`` world coordinates of LiDAR points ``[N, 3]`` taken at ``tau`` ``[N]``."""
-        R, t = self.poses(tau)
-        return np.einsum("nij,nj->ni", R, points) + t
-
-    def propagate(self, dt: float) -> tuple[ScanMotion, np.ndarray]:
-        """The motion's state ``dt`` seconds on (the next scan's prediction) and its Jacobian.
-
-        Returns:
-            The predicted motion and ``F`` ``[18, 18]``, the derivative of the predicted state's
-            tangent-space error with respect to this one's (update order of :meth:`retract`).
-        """
-        tau = np.array([dt])
-        R, t = self.poses(tau)
-        phi = self.rotvec(tau)
-        Jr = right_jacobian(phi)[0]
-        rate = Jr @ (self.omega + 2 * dt * self.alpha)
-        R_rel = Rotation.from_rotvec(phi[0]).as_matrix()
-        pred = ScanMotion(R[0], t[0], rate, R_rel.T @ self.alpha, self.v + 2 * dt * self.a, self.a)
-        F = np.eye(18)
-        F[0:3, 0:3] = R_rel.T
-        F[0:3, 6:9] = dt * Jr
-        F[0:3, 9:12] = dt**2 * Jr
-        F[3:6, 12:15] = dt * np.eye(3)
-        F[3:6, 15:18] = dt**2 * np.eye(3)
-        F[6:9, 9:12] = 2 * dt * np.eye(3)
-        F[9:12, 9:12] = R_rel.T
-        F[12:15, 15:18] = 2 * dt * np.eye(3)
-        return pred, F
-
-    def retract(self, dx: np.ndarray) -> ScanMotion:
-        """Applies an 18-vector update ``[δθ (right), δt, δω, δα, δv, δa]``."""
-        dR = Rotation.from_rotvec(dx[:3]).as_matrix()
-        return ScanMotion(
-            self.R_b @ dR,
-            self.t_b + dx[3:6],
-            self.omega + dx[6:9],
-            self.alpha + dx[9:12],
-            self.v + dx[12:15],
-            self.a + dx[15:18],
-        )
-
-
-def _prior_residual(m: ScanMotion, pred: ScanMotion) -> np.ndarray:
-    rot = Rotation.from_matrix(pred.R_b.T @ m.R_b).as_rotvec()
-    return np.concatenate(
-        [
-            rot,
-            m.t_b - pred.t_b,
-            m.omega - pred.omega,
-            m.alpha - pred.alpha,
-            m.v - pred.v,
-            m.a - pred.a,
-        ]
-    )
+__all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian", "sample_poses"]
 
 
 @dataclass
@@ -150,7 +56,7 @@ class CtLidarOdometry:
 
     Scan to scan it is an iterated Kalman filter on the 18-parameter motion: the prediction is
     the previous motion carried to the next scan start (:meth:`ScanMotion.propagate`) with its
-    covariance plus process noise (random walks of every block, mostly of ``α`` and ``a``), and the
+    covariance plus process noise (random walks of every block), and the
     update is the Levenberg–Marquardt solve of prior plus point-to-plane terms. The full covariance
     matters: with diagonal priors the start position and the velocity trade against each other
     from scan to scan and oscillate.
@@ -248,7 +154,7 @@ class CtLidarOdometry:
 
             def cost_of(mm: ScanMotion, p=p, tau=tau, n=n, off=planes.offset, sc=sc):  # noqa: ANN202
                 r = np.einsum("ni,ni->n", n, mm.transform(p, tau)) - off
-                pr = _prior_residual(mm, pred)
+                pr = prior_residual(mm, pred)
                 rho = sc**2 * r**2 / (sc**2 + r**2)  # Geman-McClure
                 return info_p * float(rho.sum()) + float(pr @ info_prior @ pr), r
 
@@ -259,7 +165,7 @@ class CtLidarOdometry:
                 J = self._jacobian(m, p, tau, n)
                 Jw = J * (info_p * wt)[:, None]
                 H = J.T @ Jw + info_prior
-                grad = Jw.T @ r + info_prior @ _prior_residual(m, pred)
+                grad = Jw.T @ r + info_prior @ prior_residual(m, pred)
                 while True:
                     dx = -np.linalg.solve(H + lam * np.diag(np.diag(H)), grad)
                     cand = m.retract(dx)
@@ -274,32 +180,76 @@ class CtLidarOdometry:
                     break
             ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)  # points on a plane
         self.last_inlier_ratio = ratio
+        self.last_info = H - info_prior  # the data's information
         P = np.linalg.inv(H)
         return m, 0.5 * (P + P.T)
 
-    def _insert(self, s: _Scan, m: ScanMotion) -> None:
-        self.map.insert(m.transform(s.map_points, s.map_tau))
+    def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
+        self.map.insert(m.transform(s.map_points, s.map_tau), born)
+
+    def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
+        """How the scan fits the old map: median distance (m) and weakest information.
+
+        Old: map points born ``lost_map_age_s`` or longer ago. The median is over the scan's
+        points that find a plane there (NaN when fewer than ``lost_old_points``); the information
+        is the smallest eigenvalue of ``Σ n nᵀ`` over those within 10 cm of their plane: how many
+        points pin the scan's position along its least constrained direction (NaN before the map
+        is old enough).
+
+        A drift shows here: the recent map drifts along with the poses that built it, so the scan
+        fits it well (the inlier ratio stays high), but the old map stays where it was; unless
+        the old map does not constrain the direction of the drift (a street canyon along its
+        axis, a UAV's height above unseen ground), which the information shows.
+        """
+        o = self.o
+        nan = float("nan")
+        before = np.floor(2 * (now_s - o.lost_map_age_s)) / 2  # the old tree lives 0.5 s
+        if before < 0:
+            return nan, nan
+        world = m.transform(s.points, s.tau)
+        planes = self.map.associate_older(world, o.max_correspondence_m, before)
+        r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
+        n = planes.normal[np.abs(r) < 0.1]
+        info = float(np.linalg.eigvalsh(n.T @ n)[0])
+        if len(planes.index) < o.lost_old_points:
+            return nan, info
+        return float(np.median(np.abs(r))), info
 
     def _check_tracking(self, k: int, stamps: np.ndarray, m: ScanMotion) -> None:
         """Raises when the odometry has lost track, instead of returning a wrong reference.
 
-        Lost: fewer than ``lost_inlier_ratio`` of the registration points on a map plane for
-        ``lost_scans`` scans in a row, or a body rate / speed no rig reaches. During the first
-        ``lost_grace_scans`` (the map is young and much of each scan new) only scans with almost
-        no point on the map (under a fifth of that ratio) count as poor.
+        Lost, for ``lost_scans`` scans in a row: fewer than ``lost_inlier_ratio`` of the
+        registration points on a map plane (``lost_young_inlier_ratio`` in the first
+        ``lost_grace_scans``, while the map is young and much of each scan new), or a median
+        distance above ``lost_old_residual_m`` to the planes of the map points older than
+        ``lost_map_age_s`` (a drift); for ``lost_unverified_s``, an old map that pins the scan's
+        position along some direction by fewer than ``lost_old_info`` points (a drift there
+        would go unseen); at once, a body rate / speed no rig reaches.
         """
         o = self.o
-        ratio = self.last_inlier_ratio
-        poor = ratio < o.lost_inlier_ratio and (
-            k > o.lost_grace_scans or ratio < o.lost_inlier_ratio / 5
+        young = k <= o.lost_grace_scans
+        poor = self.last_inlier_ratio < (
+            o.lost_young_inlier_ratio if young else o.lost_inlier_ratio
         )
         self._poor = self._poor + 1 if poor else 0
+        drift = self.last_old_residual > o.lost_old_residual_m  # False for NaN
+        self._drift = self._drift + 1 if drift else 0
+        when = (stamps[k] - stamps[0]) / NS_PER_S
+        if not self.last_old_info < o.lost_old_info:  # verified, or NaN: not checked yet
+            self._unverified_since = None
+        elif self._unverified_since is None:
+            self._unverified_since = when
+        unverified = self._unverified_since is not None
+        unseen = unverified and when - self._unverified_since >= o.lost_unverified_s
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
-        if self._poor >= o.lost_scans or absurd or not np.all(np.isfinite(m.t_b)):
-            when = (stamps[k] - stamps[0]) / NS_PER_S
+        lost = max(self._poor, self._drift) >= o.lost_scans or unseen
+        if lost or absurd or not np.all(np.isfinite(m.t_b)):
             raise ReferenceLostTrackError(
                 f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
-                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, body rate "
+                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, "
+                f"{100 * self.last_old_residual:.1f} cm median off the map of "
+                f"{o.lost_map_age_s:g} s before, which pins it by {self.last_old_info:.0f} points "
+                f"along its weakest direction, body rate "
                 f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
                 fix="ct-lidar is experimental and known to lose track with 16-beam LiDARs on "
                 "some motions (docs/references.md); use reference.name=kiss-icp, a gt-file or "
@@ -318,15 +268,18 @@ class CtLidarOdometry:
         """Inserts scan 0 with ``start`` and solves scans ``1..last`` (inclusive)."""
         self.map = self._new_map()
         self._insert(prepared[0], start)
-        self._poor = 0
+        self._poor = self._drift = 0
+        self._unverified_since: float | None = None
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
             pred, P_pred = self._predict(motions[-1], P, dt)
             m, P = self._solve(prepared[k], pred, P_pred)
+            now = float(stamps[k] - stamps[0]) / NS_PER_S
+            self.last_old_residual, self.last_old_info = self._old_residual(prepared[k], m, now)
             self._check_tracking(k, stamps, m)
             motions.append(m)
-            self._insert(prepared[k], m)
+            self._insert(prepared[k], m, now)
             self.map.crop(m.t_b)
             if on_scan is not None:
                 on_scan(k)

@@ -120,15 +120,20 @@ class CtLidarOptions(CacheOptions):
     noise_rot_deg: float = Field(0.5, gt=0, description="process noise of the attitude (deg/√s)")
     noise_pos_m: float = Field(0.01, gt=0, description="... of the position (m/√s)")
     noise_rate_rad_s: float = Field(1.0, gt=0, description="... of the body rate (rad/s/√s)")
-    noise_alpha_rad_s2: float = Field(20.0, gt=0, description="... of α (rad/s²/√s)")
+    noise_alpha_rad_s2: float = Field(
+        2.0,
+        gt=0,
+        description="... of α (rad/s²/√s); α and a are weakly seen in one scan: more noise lets "
+        "them trade with ω and v at a swing's onset (16-beam hand-held runs lost track at 20)",
+    )
     noise_velocity_m_s: float = Field(0.5, gt=0, description="... of the velocity (m/s/√s)")
-    noise_accel_m_s2: float = Field(15.0, gt=0, description="... of a (m/s²/√s)")
+    noise_accel_m_s2: float = Field(1.0, gt=0, description="... of a (m/s²/√s)")
     initial_rate_rad_s: float = Field(
         3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"
     )
-    initial_alpha_rad_s2: float = Field(30.0, gt=0, description="... α (rad/s²)")
+    initial_alpha_rad_s2: float = Field(2.0, gt=0, description="... α (rad/s²)")
     initial_velocity_m_s: float = Field(2.0, gt=0, description="... velocity (m/s)")
-    initial_accel_m_s2: float = Field(10.0, gt=0, description="... a (m/s²)")
+    initial_accel_m_s2: float = Field(1.0, gt=0, description="... a (m/s²)")
     bootstrap_rounds: int = Field(
         4, ge=1, description="iterated deskew rounds of the first two scans (first scan's motion)"
     )
@@ -136,7 +141,32 @@ class CtLidarOptions(CacheOptions):
         0.25, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
     )
     lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
-    lost_grace_scans: int = Field(10, ge=0, description="no poor-scan verdict on the first ones")
+    lost_grace_scans: int = Field(
+        10, ge=0, description="the first scans are poor only below lost_young_inlier_ratio"
+    )
+    lost_young_inlier_ratio: float = Field(
+        0.05, ge=0, le=1, description="... (the map is young, much of each scan new)"
+    )
+    lost_map_age_s: float = Field(
+        2.0, gt=0, description="drift check: each scan against the map points this old or older (s)"
+    )
+    lost_old_residual_m: float = Field(
+        0.03,
+        gt=0,
+        description="drift check: a median distance to the old map's planes above this is poor (m)",
+    )
+    lost_old_points: int = Field(
+        50, ge=10, description="drift check: fewest points on old planes for a verdict"
+    )
+    lost_old_info: float = Field(
+        10.0,
+        ge=0,
+        description="drift check: old planes pinning the scan's weakest direction by fewer "
+        "points leave a drift there unseen (unverified scan)",
+    )
+    lost_unverified_s: float = Field(
+        1.0, gt=0, description="drift check: unverified for this long in a row means lost (s)"
+    )
     max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
     max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
     poses_per_scan: int = Field(4, ge=1, description="reference poses written per scan")

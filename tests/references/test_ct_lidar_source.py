@@ -91,6 +91,20 @@ def test_map_rejects_line_like_neighbourhoods():
     assert np.isclose(abs(planes.offset[0]), 1.0)
 
 
+def test_the_old_map_keeps_where_a_drifted_map_went():
+    """The drift check's map: only the points born early enough, so a drifted copy is not used."""
+    gx, gy = np.meshgrid(np.linspace(0, 3, 15), np.linspace(0, 3, 15))
+    floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
+    m = VoxelPlaneMap(0.05, 100.0, neighbours=8)
+    m.insert(floor, born=0.0)
+    m.insert(floor + [0.0, 0.0, 1.0], born=5.0)  # the same floor, 1 m off
+    query = np.array([[1.5, 1.5, 1.02]])
+    recent = m.associate(query, 0.6)
+    old = m.associate_older(query, 1.5, before=2.0)
+    assert np.isclose(abs(recent.offset[0]), 1.0)
+    assert np.isclose(abs(old.offset[0]), 0.0, atol=1e-9)
+
+
 def test_poses_cover_every_point_from_the_first(swing, refs):
     scans = swing.segment.scans
     for ref in refs:
