@@ -2,7 +2,7 @@
 
 Run: ``python -m benchmarks.bench_e2e [--backends iekf gtsam] [--seeds 0 1 2]``. Each run is
 what ``tests/e2e/test_calibration_e2e.py`` does — an 8 s simulated hand-held bag on disk, the
-``gt-file`` reference, 25 PPO iterations of 32 candidates from no initial guess, the real backend —
+``gt-file`` reference, 35 PPO iterations of 32 candidates from no initial guess, the real backend —
 with another training seed, and compares the result with the simulated truth (the tests assert
 ≤ 3 cm / 0.5°). Rows merge into ``benchmarks/results/e2e.json`` by (backend, seed).
 """
@@ -24,8 +24,8 @@ RESULTS = Path(__file__).parent / "results" / "e2e.json"
 #: As in tests/e2e/test_calibration_e2e.py.
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (-100.0, 40.0, 60.0)}
 BUDGET = [
-    "train.max_iterations=25",
-    "train.max_evaluations=800",
+    "train.max_iterations=35",
+    "train.max_evaluations=1120",
     "train.restarts=0",
     "selection.enabled=false",
 ]

@@ -85,7 +85,7 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
         plugin = get_plugin("l2calib.references", source).build(opts)
         row: dict[str, Any] = {
             "lidar": lidar, "profile": profile, "world": world, "seed": seed,
-            "duration_s": duration, "source": source, "scans": len(seq.scans),
+            "duration_s": duration, "source": source, "scans": len(seq.scans.stamps_ns),
             "simulator_version": SIMULATOR_VERSION,
         }  # fmt: skip
         t0 = time.perf_counter()
@@ -104,7 +104,7 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
         seconds = time.perf_counter() - t0
         row.update(
             seconds=round(seconds, 1),
-            s_per_scan=round(seconds / max(len(seq.scans), 1), 3),
+            s_per_scan=round(seconds / max(len(seq.scans.stamps_ns), 1), 3),
             load=[round(x, 2) for x in os.getloadavg()],
         )
         row["met"] = met(row)

@@ -73,6 +73,7 @@ def compute_references(
     segments: Sequence[Segment],
     sequences: Sequence[DataSequence] | None = None,
     note: Callable[[str], None] | None = None,
+    progress: bool = False,
 ) -> list[ReferenceTrajectory]:
     """Runs the recipe's reference plugin on the segments (its fallback if it loses track).
 
@@ -82,6 +83,7 @@ def compute_references(
         sequences: The sequences the segments were cut from: LiDAR-odometry references start
             ``margin_s`` before each segment on their scans (warm-up).
         note: Called with a message for the user when the fallback takes over.
+        progress: Let the reference show progress bars (LiDAR odometry, per segment).
 
     Raises:
         ReferenceLostTrackError: if the reference loses track and the recipe has no fallback.
@@ -90,7 +92,7 @@ def compute_references(
 
     def compute(choice: PluginChoice) -> list[ReferenceTrajectory]:
         source = get_plugin("l2calib.references", choice.name).build(
-            choice.options, data=recipe.data, sequences=sequences
+            choice.options, data=recipe.data, sequences=sequences, progress=progress
         )
         return source.compute(list(segments))
 

@@ -53,7 +53,11 @@ def reference(
     console.print(f"[cyan]•[/] computing the {rec.reference.name} reference on "
                   f"{len(segments)} segment(s)")  # fmt: skip
     refs = compute_references(
-        rec, segments, sequences, note=lambda msg: console.print(f"[yellow]note[/]: {msg}")
+        rec,
+        segments,
+        sequences,
+        note=lambda msg: console.print(f"[yellow]note[/]: {msg}"),
+        progress=console.is_terminal,
     )
     paths = output_paths(out, len(refs))
     out.parent.mkdir(parents=True, exist_ok=True)

@@ -5,12 +5,14 @@ writes a real ROS1 bag and the LiDAR's ground-truth TUM file to disk, and runs
 :func:`~l2calib.cli.cmd_calibrate.run_calibration` — the code behind ``l2calib calibrate``: bag
 reading, the ``gt-file`` reference plugin, the real backend, TorchRL's collector and
 ``ClipPPOLoss`` in :class:`~l2calib.train.ppo.PpoTrainer`, the refinement, the resolution probe
-and the output files. The budget is a fraction of a recipe's (25 PPO iterations of 32
+and the output files. The budget is a fraction of a recipe's (35 PPO iterations of 32
 candidates on 8 s of data); the margin over training seeds is measured by
 ``python -m benchmarks.bench_e2e`` (``benchmarks/results/e2e.json``).
 
 What the tolerance (3 cm, 0.5°) catches, each checked once by breaking the code locally
-(2026-12-02, IEKF; the broken run's error in brackets):
+(2026-12-02, IEKF, 25 iterations; the broken run's error in brackets; the budget then grew to 35
+iterations because simulator version 2 left training seed 0 at 2.7 cm, and the last break was
+checked again with it):
 
 * a reward blind to the trajectory error, e.g. a constant reward [15.3 cm / 134°: the mode
   never leaves where it started];
@@ -42,8 +44,8 @@ pytestmark = [pytest.mark.e2e, pytest.mark.slow]
 #: demo rig's 180° rotation is its own inverse, which hides a transform applied the wrong way.
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (-100.0, 40.0, 60.0)}
 BUDGET = [
-    "train.max_iterations=25",
-    "train.max_evaluations=800",
+    "train.max_iterations=35",
+    "train.max_evaluations=1120",
     "train.restarts=0",  # a failed run must fail the test, not be rescued by a second one
     "selection.enabled=false",  # the whole 8 s run
 ]
