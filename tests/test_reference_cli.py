@@ -41,6 +41,8 @@ def test_whole_bag_with_kiss_icp_is_written_and_compared(small_bag, tmp_path):
     traj = read_tum(out)
     assert len(traj.stamps_ns) > 30  # 10 Hz over ~4 s after the warm-up
     assert "APE RMSE" in res.output and "kiss-icp" in res.output
+    again = _invoke("--bag", str(small_bag["bag"]), "--out", str(out), "--all")
+    assert again.exit_code == 1 and "already exist" in str(again.exception)  # not overwritten
 
 
 def test_several_segments_get_one_file_each(small_bag, tmp_path):

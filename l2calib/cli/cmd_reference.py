@@ -34,6 +34,7 @@ def reference(
         None, "--compare", help="A LiDAR trajectory file (TUM, CSV or KITTI) to compare with."
     ),
     set_: list[str] = typer.Option([], "--set", help=_SET_HELP),
+    force: bool = typer.Option(False, "--force", help="Overwrite existing output files."),
 ) -> None:
     """Compute the LiDAR reference trajectory of a recording and write it as TUM."""
     from rich.console import Console
@@ -41,6 +42,7 @@ def reference(
 
     from l2calib.alignment import ape
     from l2calib.data import NS_PER_S
+    from l2calib.errors import ConfigError
     from l2calib.io.trajectory_files import read_trajectory, write_tum
     from l2calib.pipeline import compute_references, read_sequences, select_segments
     from l2calib.recipe import load_recipe
@@ -50,6 +52,12 @@ def reference(
     truth = read_trajectory(compare, body_frame="lidar") if compare is not None else None
     sequences = read_sequences(rec, bag, progress=console.is_terminal)
     segments, _ = select_segments(rec, sequences)
+    paths = output_paths(out, len(segments))
+    existing = [str(p) for p in paths if p.exists()]
+    if existing and not force:  # nothing a user made is overwritten unasked
+        raise ConfigError(
+            f"{', '.join(existing)} already exist(s)", fix="choose another --out or pass --force"
+        )
     console.print(f"[cyan]•[/] computing the {rec.reference.name} reference on "
                   f"{len(segments)} segment(s)")  # fmt: skip
     refs = compute_references(
@@ -59,7 +67,6 @@ def reference(
         note=lambda msg: console.print(f"[yellow]note[/]: {msg}"),
         progress=console.is_terminal,
     )
-    paths = output_paths(out, len(refs))
     out.parent.mkdir(parents=True, exist_ok=True)
     table = Table(title=f"{rec.reference.name} reference (T_world_lidar, LiDAR clock)")
     for col in ("segment", "source", "poses", "span s", "file"):
