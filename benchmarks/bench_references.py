@@ -184,7 +184,7 @@ def main() -> None:
     ap.add_argument("--sources", nargs="+", default=["ct-lidar", "kiss-icp"])
     ap.add_argument("--duration", type=float, default=40.0, help="simulated seconds per run")
     ap.add_argument("--render", action="store_true", help="only rewrite references.md")
-    args = ap.parse_args()
+    args, _ = ap.parse_known_args()  # `python -m benchmarks -- --quick` passes extras
     old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {"rows": []}
     if not args.render:
         import torch
