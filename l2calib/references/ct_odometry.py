@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
@@ -105,7 +106,13 @@ class CtLidarOdometry:
         tau = np.asarray(scan.offset_s, np.float64)
         r = np.linalg.norm(p, axis=1)
         keep = np.isfinite(r) & (r >= o.min_range_m) & (r <= o.max_range_m)
-        p, tau = p[keep], tau[keep]
+        p, tau, r = p[keep], tau[keep], r[keep]
+        if o.isolated_ratio > 0 and len(p) > 1:
+            # Spurious returns (dust, mixed pixels) lie in free space, away from every other
+            # return; each would also take a voxel of its own in the samples and the map.
+            near, _ = cKDTree(p).query(p, k=2)
+            keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
+            p, tau = p[keep], tau[keep]
         reg = voxel_subsample(p, o.scan_voxel_m, self.rng)
         if len(reg) > o.max_points:
             reg = np.sort(self.rng.choice(reg, o.max_points, replace=False))

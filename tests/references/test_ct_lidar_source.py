@@ -69,6 +69,24 @@ def test_motion_jacobian_matches_finite_differences(rng):
         assert np.allclose(J[:, i], fd, atol=1e-5), i
 
 
+def test_isolated_returns_are_dropped(rng):
+    """A spurious return in free space has no other return near it: it is not used."""
+    from l2calib.data import LidarScan
+    from l2calib.references.ct_odometry import CtLidarOdometry
+    from l2calib.references.options import CtLidarOptions
+
+    az = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
+    wall = np.stack([10 * np.cos(az), 10 * np.sin(az), np.zeros_like(az)], axis=1)
+    stray = np.array([[3.0, 0.5, 0.0], [-4.0, -2.0, 0.0]])  # short of the ring at 10 m
+    pts = np.concatenate([wall, stray])
+    scan = LidarScan(stamp_ns=0, points_lidar=pts, offset_s=np.zeros(len(pts)))
+    kept = CtLidarOdometry(CtLidarOptions(scan_voxel_m=0.01, map_voxel_m=0.01))._prepare(scan)
+    assert len(kept.points) == len(wall)
+    assert np.all(np.abs(np.linalg.norm(kept.points, axis=1) - 10) < 1e-9)
+    off = CtLidarOdometry(CtLidarOptions(isolated_ratio=0, scan_voxel_m=0.01, map_voxel_m=0.01))
+    assert len(off._prepare(scan).points) == len(pts)
+
+
 def test_propagation_continues_the_motion(rng):
     m = ScanMotion(np.eye(3), np.zeros(3), np.array([0.0, 0.0, 2.0]), np.array([0.0, 0, 3.0]),
                    np.array([1.0, 0, 0]), np.array([0.0, 0.5, 0]))  # fmt: skip
