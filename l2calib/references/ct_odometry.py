@@ -192,7 +192,17 @@ class CtLidarOdometry:
         return m, 0.5 * (P + P.T)
 
     def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
-        self.map.insert(m.transform(s.map_points, s.map_tau), born)
+        world = m.transform(s.map_points, s.map_tau)
+        gate = self.o.insert_max_residual_m
+        if gate > 0 and len(self.map):
+            # A point off a plane the map already has is a spurious return short of the
+            # surface (or a small object): it would blur the plane for every later scan.
+            planes = self.map.associate(world, 4 * self.o.map_voxel_m)
+            r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
+            keep = np.ones(len(world), bool)
+            keep[planes.index[np.abs(r) > gate]] = False
+            world = world[keep]
+        self.map.insert(world, born)
 
     def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
         """How the scan fits the old map: median distance (m) and weakest information.

@@ -87,6 +87,24 @@ def test_isolated_returns_are_dropped(rng):
     assert len(off._prepare(scan).points) == len(pts)
 
 
+def test_points_off_a_map_plane_are_not_added_to_the_map():
+    """A return short of a wall the map already has would blur the wall: it is not added."""
+    from l2calib.references.ct_odometry import CtLidarOdometry, _Scan
+    from l2calib.references.options import CtLidarOptions
+
+    odo = CtLidarOdometry(CtLidarOptions())
+    g = np.arange(-2.0, 2.0, 0.2) + 0.1
+    gy, gz = np.meshgrid(g, g)
+    wall = np.stack([np.full(gy.size, 5.0), gy.ravel(), gz.ravel()], axis=1)
+    z = np.zeros(3)
+    still = ScanMotion(np.eye(3), z, z, z, z, z)
+    odo._insert(_Scan(wall, np.zeros(len(wall)), wall, np.zeros(len(wall))), still)
+    new = np.array([[4.7, 0.05, 0.05], [4.99, 0.35, 0.15], [5.0, 8.0, 0.0]])  # off, on, new
+    odo._insert(_Scan(new, np.zeros(3), new, np.zeros(3)), still)
+    added = odo.map.points[len(wall) :]
+    assert len(added) == 2 and not np.any(np.all(added == new[0], axis=1))
+
+
 def test_propagation_continues_the_motion(rng):
     m = ScanMotion(np.eye(3), np.zeros(3), np.array([0.0, 0.0, 2.0]), np.array([0.0, 0, 3.0]),
                    np.array([1.0, 0, 0]), np.array([0.0, 0.5, 0]))  # fmt: skip
