@@ -92,7 +92,7 @@ def test_points_off_a_map_plane_are_not_added_to_the_map():
     from l2calib.references.ct_odometry import CtLidarOdometry, _Scan
     from l2calib.references.options import CtLidarOptions
 
-    odo = CtLidarOdometry(CtLidarOptions())
+    odo = CtLidarOdometry(CtLidarOptions(insert_max_residual_m=0.1))  # off by default
     g = np.arange(-2.0, 2.0, 0.2) + 0.1
     gy, gz = np.meshgrid(g, g)
     wall = np.stack([np.full(gy.size, 5.0), gy.ravel(), gz.ravel()], axis=1)
