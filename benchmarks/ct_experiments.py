@@ -15,6 +15,7 @@ odometry's world is the truth's LiDAR pose at the first scan).
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import os
 import tempfile
@@ -26,10 +27,9 @@ from scipy.spatial.transform import Rotation
 from l2calib.alignment import ape
 from l2calib.data import NS_PER_S
 from l2calib.errors import ReferenceLostTrackError
-from l2calib.references import ct_odometry
 from l2calib.references.ct_odometry import CtLidarOdometry, sample_poses
 from l2calib.references.options import CtLidarOptions
-from l2calib.sim import SimConfig, simulate
+from l2calib.sim import SimConfig, lidar_models, simulate
 from l2calib.trajectory import Trajectory
 
 #: case -> (motion profile, LiDAR model, world, seed)
@@ -51,18 +51,19 @@ CASES = {
     "hhvlp16-2": ("handheld", "velodyne-vlp-16", "urban", 2),
     "hhvlp32-1": ("handheld", "velodyne-vlp-32c", "urban", 1),
     "hhxt32-1": ("handheld", "hesai-pandar-xt32", "urban", 1),
+    "hh64-1": ("handheld", "ouster-os1-64", "urban", 1),
 }
 
 
-def simulate_case(name: str, duration_s: float):  # noqa: ANN201
-    """The simulated run of a case."""
+def simulate_case(name: str, duration_s: float, lidar_set: dict | None = None):  # noqa: ANN201
+    """The simulated run of a case; ``lidar_set`` overrides the sim config's ``lidar`` fields."""
     profile, lidar, world, seed = CASES[name]
     cfg = {
         "duration_s": duration_s,
         "seed": seed,
         "world": {"name": world},
         "motion": {"profile": profile},
-        "lidar": {"model": lidar},
+        "lidar": {"model": lidar, **(lidar_set or {})},
         "imu": {"model": "vn100"},
     }
     return simulate(SimConfig.model_validate(cfg))
@@ -97,9 +98,11 @@ def term_errors(motions, truth: np.ndarray) -> np.ndarray:  # noqa: ANN001
     return err
 
 
-def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
+def run_case(
+    name: str, duration_s: float, options: dict, terms: bool, lidar_set: dict | None = None
+) -> dict:
     """Runs ct-lidar on one case; the row of results."""
-    run = simulate_case(name, duration_s)
+    run = simulate_case(name, duration_s, lidar_set)
     scans = run.sequence().segment().scans
     odo = CtLidarOdometry(CtLidarOptions.model_validate(options))
     solved: list = []
@@ -180,7 +183,7 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
             tt = (stamps[i] - stamps[0]) / NS_PER_S
             print(f"  {tt:4.1f} " + " ".join(f"{x:7.4f}" for x in rms))
         if lost is not None:
-            print("  last 12 scans: errors | true |ω| |α| |v| |a|")
+            print("  last 12 scans: errors | true |ω| |α| |v| |a| | inliers, old-map median cm")
             for k in range(max(0, len(err) - 12), len(err)):
                 size = np.linalg.norm(truth[k, 2:], axis=1)
                 print(
@@ -188,6 +191,8 @@ def run_case(name: str, duration_s: float, options: dict, terms: bool) -> dict:
                     + " ".join(f"{x:7.4f}" for x in err[k])
                     + " | "
                     + " ".join(f"{x:6.2f}" for x in size)
+                    + f" | {ratios[k - 1] if k else float('nan'):.2f} "
+                    + f"{100 * olds[k - 1] if k else float('nan'):.2f}"
                 )
             print("  last 12 scans: world error vectors of R_b (deg), t_b (cm), v (cm/s)")
             for k in range(max(0, len(err) - 12), len(err)):
@@ -214,13 +219,20 @@ def main() -> None:
     parser.add_argument("--duration", type=float, default=12.0)
     parser.add_argument("--set", nargs="*", default=[], help="CtLidarOptions field=value")
     parser.add_argument("--terms", action="store_true", help="per-term errors per second")
+    parser.add_argument("--lidar", nargs="*", default=[], help="sim config lidar field=value")
+    parser.add_argument(
+        "--no-beam-azimuth", action="store_true", help="Ouster presets without beam azimuths"
+    )
     args = parser.parse_args()
-    options = dict(kv.split("=", 1) for kv in args.set)
-    options = {k: parse_value(v) for k, v in options.items()}
+    options = {k: parse_value(v) for k, v in (kv.split("=", 1) for kv in args.set)}
+    lidar_set = {k: parse_value(v) for k, v in (kv.split("=", 1) for kv in args.lidar)}
+    if args.no_beam_azimuth:
+        for key, spec in lidar_models.LIDARS.items():
+            lidar_models.LIDARS[key] = dataclasses.replace(spec, beam_azimuth_deg=())
     os.environ.setdefault("L2CALIB_CACHE", tempfile.mkdtemp(prefix="ct-exp-"))
-    print(f"options {options}  engine {ct_odometry.__file__}", flush=True)
+    print(f"options {options} lidar {lidar_set} no-beam-azimuth {args.no_beam_azimuth}", flush=True)
     for name in args.cases:
-        row = run_case(name, args.duration, options, args.terms)
+        row = run_case(name, args.duration, options, args.terms, lidar_set)
         print(json.dumps(row), flush=True)
 
 

@@ -32,6 +32,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
@@ -105,7 +106,13 @@ class CtLidarOdometry:
         tau = np.asarray(scan.offset_s, np.float64)
         r = np.linalg.norm(p, axis=1)
         keep = np.isfinite(r) & (r >= o.min_range_m) & (r <= o.max_range_m)
-        p, tau = p[keep], tau[keep]
+        p, tau, r = p[keep], tau[keep], r[keep]
+        if o.isolated_ratio > 0 and len(p) > 1:
+            # Spurious returns (dust, mixed pixels) lie in free space, away from every other
+            # return; each would also take a voxel of its own in the samples and the map.
+            near, _ = cKDTree(p).query(p, k=2)
+            keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
+            p, tau = p[keep], tau[keep]
         reg = voxel_subsample(p, o.scan_voxel_m, self.rng)
         if len(reg) > o.max_points:
             reg = np.sort(self.rng.choice(reg, o.max_points, replace=False))
@@ -185,7 +192,17 @@ class CtLidarOdometry:
         return m, 0.5 * (P + P.T)
 
     def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
-        self.map.insert(m.transform(s.map_points, s.map_tau), born)
+        world = m.transform(s.map_points, s.map_tau)
+        gate = self.o.insert_max_residual_m
+        if gate > 0 and len(self.map):
+            # A point off a plane the map already has is a spurious return short of the
+            # surface (or a small object): it would blur the plane for every later scan.
+            planes = self.map.associate(world, 4 * self.o.map_voxel_m)
+            r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
+            keep = np.ones(len(world), bool)
+            keep[planes.index[np.abs(r) > gate]] = False
+            world = world[keep]
+        self.map.insert(world, born)
 
     def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
         """How the scan fits the old map: median distance (m) and weakest information.

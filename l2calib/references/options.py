@@ -101,6 +101,19 @@ class CtLidarOptions(CacheOptions):
 
     min_range_m: float = Field(0.5, ge=0, description="points nearer than this are dropped (m)")
     max_range_m: float = Field(100.0, gt=0, description="points farther than this are dropped")
+    isolated_ratio: float = Field(
+        0.03,
+        ge=0,
+        description="a point whose nearest other return of the scan is farther than this times "
+        "its range (and isolated_min_m) is dropped as spurious (0: keep all)",
+    )
+    isolated_min_m: float = Field(0.1, gt=0, description="... but never nearer than this (m)")
+    insert_max_residual_m: float = Field(
+        0.0,
+        ge=0,
+        description="a scan point farther than this from the map's plane there is not added to "
+        "the map (m; 0: all are added; experimental: 0.1 lost a 16-beam hand-held run)",
+    )
     scan_voxel_m: float = Field(0.4, gt=0, description="registration sample: 1 point per voxel")
     max_points: int = Field(3000, ge=100, description="registration points per scan at most")
     map_voxel_m: float = Field(0.2, gt=0, description="local map: 1 point per voxel (m)")

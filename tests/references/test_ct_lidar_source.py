@@ -69,6 +69,42 @@ def test_motion_jacobian_matches_finite_differences(rng):
         assert np.allclose(J[:, i], fd, atol=1e-5), i
 
 
+def test_isolated_returns_are_dropped(rng):
+    """A spurious return in free space has no other return near it: it is not used."""
+    from l2calib.data import LidarScan
+    from l2calib.references.ct_odometry import CtLidarOdometry
+    from l2calib.references.options import CtLidarOptions
+
+    az = np.linspace(0, 2 * np.pi, 2000, endpoint=False)
+    wall = np.stack([10 * np.cos(az), 10 * np.sin(az), np.zeros_like(az)], axis=1)
+    stray = np.array([[3.0, 0.5, 0.0], [-4.0, -2.0, 0.0]])  # short of the ring at 10 m
+    pts = np.concatenate([wall, stray])
+    scan = LidarScan(stamp_ns=0, points_lidar=pts, offset_s=np.zeros(len(pts)))
+    kept = CtLidarOdometry(CtLidarOptions(scan_voxel_m=0.01, map_voxel_m=0.01))._prepare(scan)
+    assert len(kept.points) == len(wall)
+    assert np.all(np.abs(np.linalg.norm(kept.points, axis=1) - 10) < 1e-9)
+    off = CtLidarOdometry(CtLidarOptions(isolated_ratio=0, scan_voxel_m=0.01, map_voxel_m=0.01))
+    assert len(off._prepare(scan).points) == len(pts)
+
+
+def test_points_off_a_map_plane_are_not_added_to_the_map():
+    """A return short of a wall the map already has would blur the wall: it is not added."""
+    from l2calib.references.ct_odometry import CtLidarOdometry, _Scan
+    from l2calib.references.options import CtLidarOptions
+
+    odo = CtLidarOdometry(CtLidarOptions(insert_max_residual_m=0.1))  # off by default
+    g = np.arange(-2.0, 2.0, 0.2) + 0.1
+    gy, gz = np.meshgrid(g, g)
+    wall = np.stack([np.full(gy.size, 5.0), gy.ravel(), gz.ravel()], axis=1)
+    z = np.zeros(3)
+    still = ScanMotion(np.eye(3), z, z, z, z, z)
+    odo._insert(_Scan(wall, np.zeros(len(wall)), wall, np.zeros(len(wall))), still)
+    new = np.array([[4.7, 0.05, 0.05], [4.99, 0.35, 0.15], [5.0, 8.0, 0.0]])  # off, on, new
+    odo._insert(_Scan(new, np.zeros(3), new, np.zeros(3)), still)
+    added = odo.map.points[len(wall) :]
+    assert len(added) == 2 and not np.any(np.all(added == new[0], axis=1))
+
+
 def test_propagation_continues_the_motion(rng):
     m = ScanMotion(np.eye(3), np.zeros(3), np.array([0.0, 0.0, 2.0]), np.array([0.0, 0, 3.0]),
                    np.array([1.0, 0, 0]), np.array([0.0, 0.5, 0]))  # fmt: skip
