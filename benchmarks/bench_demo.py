@@ -18,11 +18,13 @@ import time
 from pathlib import Path
 
 import numpy as np
+import torch
 import yaml
 from rich.console import Console
 from rich.table import Table
 
 from benchmarks.machine import machine_info
+from l2calib import geometry as geo
 
 RESULTS = Path(__file__).parent / "results" / "demo.json"
 
@@ -44,13 +46,15 @@ def run_demo(reference: str, seed: int) -> dict:
         gt = yaml.safe_load((out / "simulated" / "extrinsic_gt.yaml").read_text())
         written = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
     T_true = np.asarray(gt["T_imu_lidar"])
-    cos = (np.trace(T_true[:3, :3].T @ T[:3, :3]) - 1) / 2
     return {
         "command": " ".join(["l2calib", *cmd[3:]]),
         "reference": reference,
         "seed": seed,
         "t_err_cm": round(float(np.linalg.norm(T[:3, 3] - T_true[:3, 3])) * 100, 3),
-        "r_err_deg": round(math.degrees(math.acos(max(-1.0, min(1.0, cos)))), 4),
+        "r_err_deg": round(
+            math.degrees(float(geo.rotation_angle(torch.from_numpy(T_true[:3, :3].T @ T[:3, :3])))),
+            4,
+        ),
         "wall_s": round(wall, 1),
         "evaluations": written.get("training", {}).get("evaluations"),
         "warnings": written.get("uncertainty", {}).get("warnings", []),

@@ -187,7 +187,6 @@ class CtLidarOdometry:
                     break
             ratio = float(np.sum(np.abs(r) < 3 * sc)) / len(s.points)  # points on a plane
         self.last_inlier_ratio = ratio
-        self.last_info = H - info_prior  # the data's information
         P = np.linalg.inv(H)
         return m, 0.5 * (P + P.T)
 
