@@ -84,6 +84,7 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
         opts = source_options(source, run.lidar_spec.max_range_m, cache)
         plugin = get_plugin("l2calib.references", source).build(opts)
         row: dict[str, Any] = {
+            "engine": getattr(plugin, "version", lambda: None)(),
             "lidar": lidar, "profile": profile, "world": world, "seed": seed,
             "duration_s": duration, "source": source, "scans": len(seq.scans.stamps_ns),
             "simulator_version": SIMULATOR_VERSION,
@@ -195,6 +196,8 @@ def main() -> None:
                 args.lidars, args.profiles, args.worlds, args.seeds
             ):
                 new = run_one(lidar, profile, world, seed, args.duration, args.sources, Path(tmp))
+                # Re-read: another process may have added rows meanwhile (parallel lanes).
+                old = json.loads(RESULTS.read_text()) if RESULTS.is_file() else {"rows": []}
                 done = {tuple(r[k] for k in KEY) for r in new}
                 kept = [r for r in old["rows"] if tuple(r[k] for k in KEY) not in done]
                 old = {"rows": [*kept, *new]}

@@ -9,7 +9,10 @@ deskew from the previous scan, which a hand-swung rig at 15 rad/s² breaks)::
 (rad/s², half the angular acceleration), world velocity ``v`` (m/s) and ``a`` (m/s², half the
 acceleration): 18 parameters per scan, solved by Levenberg–Marquardt on point-to-plane distances
 to a local voxel map (:mod:`l2calib.references.ct_map`), with priors that the scan starts where
-and how the previous scan's motion ended (continuity). After a scan converges, its points are
+and how the previous scan's motion ended (continuity). Where the map has no plane because a
+sparse LiDAR draws the surface as lines metres apart, the scan's own lines give the normal
+(:mod:`l2calib.references.ct_normals`). α's process noise follows the recent angular
+acceleration (:meth:`CtLidarOdometry._alpha_noise`). After a scan converges, its points are
 moved into the world by their own poses and added to the map.
 
 The first scan has no map and no motion of its own: scans 0 and 1 are taken to share one
@@ -37,8 +40,9 @@ from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
 from l2calib.errors import ReferenceLostTrackError, ReferenceSourceError
-from l2calib.references.ct_map import VoxelPlaneMap, voxel_subsample
+from l2calib.references.ct_map import Planes, VoxelPlaneMap, voxel_subsample
 from l2calib.references.ct_motion import ScanMotion, prior_residual, right_jacobian
+from l2calib.references.ct_normals import line_normals
 from l2calib.references.options import CtLidarOptions
 
 __all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian", "sample_poses"]
@@ -50,6 +54,7 @@ class _Scan:
     tau: np.ndarray  # [N] s after the scan start
     map_points: np.ndarray  # [M, 3] map-voxel sample
     map_tau: np.ndarray
+    normal: np.ndarray | None = None  # [N, 3] scan-line normals (LiDAR frame), NaN unknown
 
 
 class CtLidarOdometry:
@@ -97,31 +102,99 @@ class CtLidarOdometry:
     def _new_map(self) -> VoxelPlaneMap:
         o = self.o
         return VoxelPlaneMap(
-            o.map_voxel_m, o.map_radius_m, o.neighbours, o.max_plane_rms_m, o.min_spread_ratio
+            o.map_voxel_m,
+            o.map_radius_m,
+            o.neighbours,
+            o.max_plane_rms_m,
+            o.min_spread_ratio,
+            o.plane_radius_m,
+            o.plane_cell_m,
         )
 
     def _prepare(self, scan: LidarScan) -> _Scan:
         o = self.o
         p = np.asarray(scan.points_lidar, np.float64)
         tau = np.asarray(scan.offset_s, np.float64)
+        ring = scan.ring if o.line_match_m > 0 else None
         r = np.linalg.norm(p, axis=1)
         keep = np.isfinite(r) & (r >= o.min_range_m) & (r <= o.max_range_m)
         p, tau, r = p[keep], tau[keep], r[keep]
+        ring = None if ring is None else np.asarray(ring)[keep]
         if o.isolated_ratio > 0 and len(p) > 1:
             # Spurious returns (dust, mixed pixels) lie in free space, away from every other
             # return; each would also take a voxel of its own in the samples and the map.
             near, _ = cKDTree(p).query(p, k=2)
             keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
             p, tau = p[keep], tau[keep]
+            ring = None if ring is None else ring[keep]
         reg = voxel_subsample(p, o.scan_voxel_m, self.rng)
         if len(reg) > o.max_points:
             reg = np.sort(self.rng.choice(reg, o.max_points, replace=False))
         mp = voxel_subsample(p, o.map_voxel_m, self.rng)
-        return _Scan(p[reg], tau[reg], p[mp], tau[mp])
+        normal = None if ring is None else line_normals(p, ring, reg)
+        return _Scan(p[reg], tau[reg], p[mp], tau[mp], normal)
 
-    def _predict(self, m: ScanMotion, P: np.ndarray, dt: float) -> tuple[ScanMotion, np.ndarray]:
+    def _associate(self, s: _Scan, m: ScanMotion, gate: float, lines: bool = True) -> Planes:
+        """Point-to-plane matches of the scan's sample at motion ``m``.
+
+        The map's planes first; the points without one that have a scan-line normal
+        (:mod:`l2calib.references.ct_normals`, rotated into the world) take the plane with that
+        normal through their ``line_neighbours`` nearest map points within ``line_match_m``,
+        where those lie within ``line_flat_m`` of it (a far ground ring of a 16-beam LiDAR: a
+        line in the map, on the scan point's surface) and the point within ``line_gate_m``.
+        """
+        world = m.transform(s.points, s.tau)
+        planes = self.map.associate(world, gate)
+        if s.normal is None or not lines:
+            return planes
+        rest = np.ones(len(world), bool)
+        rest[planes.index] = False
+        rest &= np.isfinite(s.normal[:, 0])
+        rest = np.flatnonzero(rest)
+        R, _ = m.poses(s.tau[rest])
+        n = np.einsum("nij,nj->ni", R, s.normal[rest])
+        found, off = self.map.on_plane(
+            world[rest], n, self.o.line_match_m, self.o.line_neighbours, self.o.line_flat_m
+        )
+        rest, n = rest[found], n[found]
+        near = np.abs(np.einsum("ni,ni->n", n, world[rest]) - off) <= self.o.line_gate_m
+        return Planes(
+            np.concatenate([planes.index, rest[near]]),
+            np.concatenate([planes.normal, n[near]]),
+            np.concatenate([planes.offset, off[near]]),
+        )
+
+    def _alpha_noise(self, motions: list[ScanMotion], stamps: np.ndarray, k: int) -> float:
+        """Process noise of α for scan ``k`` (rad/s²/√s), from the recent angular acceleration.
+
+        α (the within-scan change of the body rate) is seen only weakly by one scan. Where the
+        rig turns smoothly (a UAV, a vehicle) a loose α lets the weakly seen terms wander and
+        the map follow them (a 16-beam UAV flight drifted 1° in pitch in 2 s, then lost track);
+        a hand-swung rig needs it loose. So its noise follows the largest change of the body
+        rate between consecutive scans over the last ``alpha_noise_window_s``, between
+        ``noise_alpha_min_rad_s2`` and ``noise_alpha_rad_s2``.
+        """
+        o = self.o
+        lo, hi = o.noise_alpha_min_rad_s2, o.noise_alpha_rad_s2
+        t = (stamps[:k] - stamps[0]) / NS_PER_S
+        first = max(1, int(np.searchsorted(t, t[-1] - o.alpha_noise_window_s)))
+        if lo >= hi or first >= k:  # no history yet: loose
+            return hi
+        acc = max(
+            np.linalg.norm(motions[j].omega - motions[j - 1].omega) / (t[j] - t[j - 1])
+            for j in range(first, k)
+        )
+        return float(np.clip(o.alpha_noise_gain * acc, lo, hi))
+
+    def _predict(
+        self, m: ScanMotion, P: np.ndarray, dt: float, alpha_noise: float | None = None
+    ) -> tuple[ScanMotion, np.ndarray, np.ndarray]:
+        """The next scan's prior: motion, covariance ``[18, 18]`` and transition ``F``."""
         pred, F = m.propagate(dt)
-        return pred, F @ P @ F.T + np.diag(self.q_density * dt)
+        q = self.q_density.copy()
+        if alpha_noise is not None:
+            q[9:12] = alpha_noise**2
+        return pred, F @ P @ F.T + np.diag(q * dt), F
 
     def _jacobian(self, m: ScanMotion, p: np.ndarray, tau: np.ndarray, n: np.ndarray) -> np.ndarray:
         """``[N, 18]`` derivative of the point-to-plane distances (update order of retract)."""
@@ -151,9 +224,8 @@ class CtLidarOdometry:
         H = info_prior
         ratio = 0.0
         for it in range(o.iterations):
-            world = m.transform(s.points, s.tau)
             gate = max(o.max_correspondence_m * (0.5**it), 4 * o.map_voxel_m)
-            planes = self.map.associate(world, gate)
+            planes = self._associate(s, m, gate, lines=it >= o.line_match_from)
             if len(planes.index) < o.min_planes:
                 break
             p, tau, n = s.points[planes.index], s.tau[planes.index], planes.normal
@@ -289,7 +361,9 @@ class CtLidarOdometry:
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
-            pred, P_pred = self._predict(motions[-1], P, dt)
+            pred, P_pred, _ = self._predict(
+                motions[-1], P, dt, self._alpha_noise(motions, stamps, k)
+            )
             m, P = self._solve(prepared[k], pred, P_pred)
             now = float(stamps[k] - stamps[0]) / NS_PER_S
             self.last_old_residual, self.last_old_info = self._old_residual(prepared[k], m, now)

@@ -120,6 +120,23 @@ class CtLidarOptions(CacheOptions):
     map_radius_m: float = Field(60.0, gt=0, description="map points kept around the LiDAR (m)")
     neighbours: int = Field(12, ge=5, description="map points per plane fit")
     max_plane_rms_m: float = Field(0.05, gt=0, description="flatness a plane fit needs (m)")
+    plane_radius_m: float = Field(
+        1.0, gt=0, description="a plane needs all its neighbours this near its cell's centre (m)"
+    )
+    plane_cell_m: float = Field(
+        0.2, gt=0, description="queries in one cell of this edge share one plane fit (m)"
+    )
+    line_match_m: float = Field(
+        2.0,
+        ge=0,
+        description="a point with no map plane but a normal from its scan lines (ring field) "
+        "is matched to the plane through the nearest map point this near with that normal "
+        "(m; 0: off)",
+    )
+    line_neighbours: int = Field(6, ge=3, description="... whose this many nearest map points")
+    line_flat_m: float = Field(0.05, gt=0, description="... lie this near the plane (m)")
+    line_match_from: int = Field(0, ge=0, description="... from this association round on")
+    line_gate_m: float = Field(0.3, gt=0, description="... within this of that plane (m)")
     min_spread_ratio: float = Field(
         0.2, gt=0, lt=1, description="rejects line-like neighbourhoods (2nd / 1st spread)"
     )
@@ -134,11 +151,21 @@ class CtLidarOptions(CacheOptions):
     noise_pos_m: float = Field(0.01, gt=0, description="... of the position (m/√s)")
     noise_rate_rad_s: float = Field(1.0, gt=0, description="... of the body rate (rad/s/√s)")
     noise_alpha_rad_s2: float = Field(
-        2.0,
+        8.0,
         gt=0,
-        description="... of α (rad/s²/√s); α and a are weakly seen in one scan: more noise lets "
-        "them trade with ω and v at a swing's onset (16-beam hand-held runs lost track at 20)",
+        description="... of α (rad/s²/√s) at most, for the fastest swings; α is weakly seen in "
+        "one scan, so its noise follows the recent angular acceleration (alpha_noise_gain)",
     )
+    noise_alpha_min_rad_s2: float = Field(
+        0.2,
+        gt=0,
+        description="... at least this where the body rate changes slowly (UAV, vehicle): α's "
+        "noise follows the recent angular acceleration, between this and noise_alpha_rad_s2",
+    )
+    alpha_noise_gain: float = Field(
+        0.5, gt=0, description="α's noise: this times the recent angular acceleration (rad/s²)"
+    )
+    alpha_noise_window_s: float = Field(1.0, gt=0, description="... over this long (s)")
     noise_velocity_m_s: float = Field(0.5, gt=0, description="... of the velocity (m/s/√s)")
     noise_accel_m_s2: float = Field(1.0, gt=0, description="... of a (m/s²/√s)")
     initial_rate_rad_s: float = Field(

@@ -131,7 +131,7 @@ def test_the_old_map_keeps_where_a_drifted_map_went():
     """The drift check's map: only the points born early enough, so a drifted copy is not used."""
     gx, gy = np.meshgrid(np.linspace(0, 3, 15), np.linspace(0, 3, 15))
     floor = np.stack([gx.ravel(), gy.ravel(), np.zeros(gx.size)], axis=1)
-    m = VoxelPlaneMap(0.05, 100.0, neighbours=8)
+    m = VoxelPlaneMap(0.05, 100.0, neighbours=8, plane_radius_m=1.5)
     m.insert(floor, born=0.0)
     m.insert(floor + [0.0, 0.0, 1.0], born=5.0)  # the same floor, 1 m off
     query = np.array([[1.5, 1.5, 1.02]])

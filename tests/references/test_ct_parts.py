@@ -1,0 +1,80 @@
+"""ct-lidar's parts: scan-line normals, the planes' cache and the adaptive α noise."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from l2calib.data import NS_PER_S
+from l2calib.references.ct_map import VoxelPlaneMap
+from l2calib.references.ct_normals import line_normals
+from l2calib.references.ct_odometry import CtLidarOdometry, ScanMotion
+from l2calib.references.options import CtLidarOptions
+
+
+def ring_scan(ground_z, step_deg=0.4):
+    """8 lines (-15° to -1°, 2° apart) of the ground ``z = ground_z(x, y)`` seen from the origin.
+
+    A ray's hit is where it meets z = -4, moved along the ray to the height there.
+    """
+    az = np.radians(np.arange(0.0, 360.0, step_deg))
+    pts, ring = [], []
+    for i, el in enumerate(np.radians(np.arange(-15.0, 0.0, 2.0))):
+        c = np.cos(el)
+        d = np.stack([c * np.cos(az), c * np.sin(az), np.full(len(az), np.sin(el))], 1)
+        p = d * (-4.0 / d[:, 2])[:, None]
+        z = ground_z(p[:, 0], p[:, 1])
+        p = d * (z / d[:, 2])[:, None]
+        pts.append(p)
+        ring.append(np.full(len(az), i, np.uint16))
+    return np.concatenate(pts), np.concatenate(ring)
+
+
+def test_ground_rings_metres_apart_get_the_ground_normal():
+    pts, ring = ring_scan(lambda x, y: np.full(len(x), -4.0))
+    mid = np.flatnonzero((ring > 0) & (ring < 4))  # 18-26 m away, lines 2.3-7 m apart
+    n = line_normals(pts, ring, mid)
+    ok = np.isfinite(n[:, 0])
+    assert ok.mean() > 0.99  # all but where the azimuth wraps round
+    assert np.allclose(np.abs(n[ok, 2]), 1.0, atol=1e-3)
+    beyond = np.flatnonzero(ring == 6)  # 76 m; the next line is at 229 m: too far to span
+    assert np.isnan(line_normals(pts, ring, beyond)).all()
+
+
+def test_a_curb_between_lines_gives_no_normal():
+    """A 15 cm step between the 2nd and 3rd line: their patches bend; beyond it all is flat."""
+    pts, ring = ring_scan(lambda x, y: np.where(np.hypot(x, y) > 19.0, -3.85, -4.0))
+    straddle = line_normals(pts, ring, np.flatnonzero((ring == 1) | (ring == 2)))
+    assert np.isnan(straddle[:, 0]).all()
+    beyond = line_normals(pts, ring, np.flatnonzero(ring == 3))
+    assert np.isfinite(beyond[:, 0]).mean() > 0.99
+
+
+def test_query_planes_are_cached_per_cell_and_match_the_surface():
+    gx, gy = np.meshgrid(np.linspace(0, 4, 41), np.linspace(0, 4, 41))
+    floor = np.stack([gx.ravel(), gy.ravel(), np.full(gx.size, 0.5)], axis=1)
+    m = VoxelPlaneMap(0.05, 100.0, neighbours=8, cell_m=0.2)
+    m.insert(floor)
+    q = np.array([[1.01, 1.02, 0.53], [1.05, 1.07, 0.49], [3.0, 3.0, 2.0]])
+    planes = m.associate(q, 0.3)
+    assert list(planes.index) == [0, 1]  # the third is 1.5 m off the floor: beyond the gate
+    assert np.allclose(np.abs(planes.normal), [0, 0, 1], atol=1e-9)
+    assert np.allclose(np.abs(planes.offset), 0.5)
+    fitted = len(m._now.keys)
+    m.associate(q + 0.01, 0.3)  # same cells: no new fit
+    assert len(m._now.keys) == fitted
+
+
+def test_alpha_noise_follows_the_angular_acceleration():
+    odo = CtLidarOdometry(CtLidarOptions())
+    o = odo.o
+    stamps = (np.arange(30) * 0.1 * NS_PER_S).astype(np.int64)
+    z = np.zeros(3)
+
+    def motions(rate):
+        return [ScanMotion(np.eye(3), z, rate(k), z, z, z) for k in range(30)]
+
+    steady = motions(lambda k: np.array([0.0, 0.0, 0.3]))  # a UAV's slow turn
+    swing = motions(lambda k: np.array([0.0, 0.0, 0.5 * k]))  # 5 rad/s² (hand-held)
+    assert odo._alpha_noise(steady, stamps, 20) == o.noise_alpha_min_rad_s2
+    assert np.isclose(odo._alpha_noise(swing, stamps, 20), o.alpha_noise_gain * 5.0)
+    assert odo._alpha_noise(steady, stamps, 1) == o.noise_alpha_rad_s2  # no history: loose
