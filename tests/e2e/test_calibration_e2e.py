@@ -109,3 +109,26 @@ def test_calibrates_a_handheld_bag_from_no_initial_guess(bag, backend, tmp_path)
     assert not result.warnings and not result.undetermined
     written = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
     assert written["reference"]["sources"] == ["gt-file"]
+
+
+def test_calibrates_with_the_lidar_only_reference(bag, tmp_path):
+    """The same bag with no ground truth at all: the ``ct-lidar`` reference (IEKF backend).
+
+    What a user without motion capture runs. Catches, besides the breaks above, a LiDAR-only
+    reference that drifts or loses track on a hand-swung 16-beam rig (it raises rather than
+    return a wrong trajectory, so this test fails on either).
+    """
+    from rich.console import Console
+
+    from l2calib.cli.cmd_calibrate import run_calibration
+
+    bag_path, _, T_true = bag
+    recipe = load_recipe("simulator", ["reference.name=ct-lidar", "backend.name=iekf", *BUDGET])
+    result = run_calibration(
+        recipe, tmp_path / "out", bags=[bag_path], truth=T_true, console=Console(quiet=True)
+    )
+    err_m, err_deg = _errors(result.T_imu_lidar, T_true)
+    assert err_m <= TOLERANCE[0] and err_deg <= TOLERANCE[1], (100 * err_m, err_deg)
+    written = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
+    assert written["reference"]["sources"] == ["ct-lidar"]
+    assert not result.warnings
