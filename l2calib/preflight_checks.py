@@ -285,8 +285,10 @@ def check_pair(lidar: LidarTopicReport, imu: ImuTopicReport) -> tuple[float | No
         )
     a, b = lidar.stamps.record_minus_header_s, imu.stamps.record_minus_header_s
     period = _scan_period_s(lidar)
-    if a is not None and b is not None and not (
-        -CLOCK_MISMATCH_S <= a[0] - b[0] <= period + CLOCK_MISMATCH_S
+    if (
+        a is not None
+        and b is not None
+        and not (-CLOCK_MISMATCH_S <= a[0] - b[0] <= period + CLOCK_MISMATCH_S)
     ):
         out.append(
             Issue(

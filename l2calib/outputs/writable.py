@@ -38,7 +38,8 @@ def check_writable(path: str | Path, option: str = "--out", kind: str = "directo
         OutputError: naming ``option``, ``path``, what is in the way and how to fix it.
     """
     path = Path(path)
-    fix = f"pass a {option} in a place you can write to (e.g. {option} ./calib-out)"
+    example = "./calib-out" if kind == "directory" else f"./{path.name}"
+    fix = f"pass a {option} in a place you can write to (e.g. {option} {example})"
     if kind == "file" and path.is_dir():
         raise OutputError(f"{option} {path}: is a directory, not a file", fix=fix)
     target = path if kind == "directory" else path.parent
