@@ -60,3 +60,7 @@ class TrainingError(L2CalibError):
 
 class NotImplementedPluginError(PluginError):
     """A registered plugin is a documented placeholder that cannot run yet."""
+
+
+class OutputError(L2CalibError):
+    """An output path (``--out``) cannot be created or written."""

@@ -24,6 +24,7 @@ from l2calib.data import Segment
 from l2calib.data import Sequence as DataSequence
 from l2calib.errors import DataError, ReferenceLostTrackError, TrainingError
 from l2calib.interfaces import ReferenceTrajectory
+from l2calib.interrupt import Interrupted, stop_workers
 from l2calib.outputs.calibration_file import CalibrationResult
 from l2calib.recipe import PluginChoice, Recipe
 
@@ -207,13 +208,15 @@ def train_policy(
     say(f"preparing the {recipe.backend.name} odometry")
     env = make_training_env(recipe, data.segments, data.references)
     attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)
+    k = 0
     try:  # the workers serve every attempt, its refinement and probe; down on any error
         for k in range(recipe.train.restarts + 1):
             seed = recipe.train.seed + k * RESTART_SEED_STRIDE
             sub = out_dir if out_dir is None or k == 0 else out_dir / f"restart-{k}"
             # A restart that had not begun when the run was killed starts afresh on --resume.
             again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
-            attempts.append((*_attempt(recipe, data, env, seed, sub, again, progress, say), seed))
+            result_outcome = _attempt(recipe, data, env, seed, sub, again, progress, say, k)
+            attempts.append((*result_outcome, seed))
             result = attempts[-1][0]
             if not result.warnings or k == recipe.train.restarts:
                 break
@@ -223,10 +226,35 @@ def train_policy(
                 f"PPO starts again with seed {seed + RESTART_SEED_STRIDE} "
                 f"(restart {k + 1} of at most {recipe.train.restarts})"
             )
+    except Interrupted as exc:
+        stop_workers(env)  # they may be mid-batch: a polite close would wait for them
+        env.__dict__["is_closed"] = True
+        if out_dir is not None:
+            _locate_checkpoint(exc, out_dir, k)
+        raise
     finally:
         if not getattr(env, "is_closed", False):
             env.close()
     return _keep_best(attempts)
+
+
+def _locate_checkpoint(exc: Interrupted, out_dir: Path, attempt: int) -> None:
+    """Fills in where a ``--resume`` of an interrupted run continues (attempt, iteration).
+
+    The trainer says so itself when it was interrupted; an interruption elsewhere (refinement,
+    probe, between attempts) continues from the newest checkpoint on disk.
+    """
+    from l2calib.train.checkpoint import CHECKPOINT_NAME, checkpoint_iterations
+
+    if exc.checkpoint is not None:
+        exc.attempt = attempt
+        return
+    for k in range(attempt, -1, -1):
+        path = (out_dir if k == 0 else out_dir / f"restart-{k}") / CHECKPOINT_NAME
+        if path.is_file():
+            exc.attempt, exc.checkpoint = k, path
+            exc.iteration = checkpoint_iterations(path)
+            return
 
 
 def _agreement_text(agreement: dict[str, float | None]) -> str:
@@ -269,12 +297,16 @@ def _attempt(
     resume: bool,
     progress: Callable[[Any], None] | None,
     say: Callable[[str], None],
+    attempt: int = 0,
 ) -> tuple[CalibrationResult, Any]:
-    """One PPO run from scratch with ``seed``, its refinement and its resolution probe."""
+    """One PPO run from scratch with ``seed``, its refinement and its resolution probe.
+
+    ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user.
+    """
     from l2calib import sensitivity
     from l2calib.plugins import get_plugin
     from l2calib.refine import refine
-    from l2calib.train.checkpoint import recipe_fingerprint
+    from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
     from l2calib.train.ppo import PpoTrainer
 
     cfg = recipe.train.model_copy(update={"seed": seed})
@@ -288,6 +320,11 @@ def _attempt(
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)
     if resume:
         trainer.resume()
+        which = "the first PPO run" if attempt == 0 else f"restart {attempt}"
+        say(
+            f"resuming {which} (seed {seed}) at iteration {len(trainer.outcome.history)} "
+            f"from {out_dir / CHECKPOINT_NAME}"
+        )
     say("training")
     outcome = trainer.run(progress)
     mode = policy.mode()

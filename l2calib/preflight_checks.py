@@ -8,8 +8,10 @@ Thresholds (why):
   0.3 m/s² (3 %): accelerometer scale/unit problem.
 * Record time more than 0.5 s after the header stamp (median), or any header stamp in the future
   of its record time by more than 50 ms: the sensor is probably stamped on another clock.
-* LiDAR and IMU clocks: if their record-minus-header medians differ by more than 0.1 s, their
-  stamps likely come from different clocks (the calibration's time offset cannot absorb that).
+* LiDAR and IMU clocks: a LiDAR message is recorded when its scan ends, so its record-minus-header
+  median normally exceeds the IMU's by up to one scan period (0.1 s at 10 Hz) when the header
+  stamps the scan start. Only when the difference leaves ``[-0.1 s, scan period + 0.1 s]`` are
+  the stamps likely from different clocks (the calibration's time offset cannot absorb that).
 * Overlap below 80 % of the shorter stream: much of the data cannot be used.
 """
 
@@ -282,14 +284,30 @@ def check_pair(lidar: LidarTopicReport, imu: ImuTopicReport) -> tuple[float | No
             )
         )
     a, b = lidar.stamps.record_minus_header_s, imu.stamps.record_minus_header_s
-    if a is not None and b is not None and abs(a[0] - b[0]) > CLOCK_MISMATCH_S:
+    period = _scan_period_s(lidar)
+    if (
+        a is not None
+        and b is not None
+        and not (-CLOCK_MISMATCH_S <= a[0] - b[0] <= period + CLOCK_MISMATCH_S)
+    ):
         out.append(
             Issue(
                 "warning",
                 where,
                 f"LiDAR and IMU header stamps lag the recorder by "
-                f"{a[0]:+.3f} s and {b[0]:+.3f} s: different clocks?",
+                f"{a[0]:+.3f} s and {b[0]:+.3f} s (a scan lasts {period:.3f} s, so up to "
+                f"{period + CLOCK_MISMATCH_S:.3f} s more for the LiDAR is normal): "
+                "different clocks?",
                 "stamp both sensors on one clock (PTP, or the host's)",
             )
         )
     return overlap, out
+
+
+def _scan_period_s(lidar: LidarTopicReport) -> float:
+    """One scan's duration (s): from the message rate, else from the per-point times, else 0."""
+    if lidar.stamps.rate_hz > 0:
+        return 1.0 / lidar.stamps.rate_hz
+    if lidar.scan_duration_s == lidar.scan_duration_s:  # not NaN
+        return float(lidar.scan_duration_s)
+    return 0.0

@@ -207,18 +207,47 @@ _NAME_KEYS = {f"{section}.name" for section in PLUGIN_SECTIONS}
 
 
 # --------------------------------------------------------------------------- errors
-def _format_validation(exc: ValidationError, source: str, prefix: str = "") -> ConfigError:
-    lines = []
+def _override_for(path: str, overrides: list[str]) -> str | None:
+    """The ``--set`` item that wrote field ``path`` (or switched its plugin), if any.
+
+    The last one wins, as when applying them.
+    """
+    for item in reversed(overrides):
+        key = item.partition("=")[0].strip()
+        if path == key or path.startswith(key + ".") or key.startswith(path + "."):
+            return item
+        if key in _NAME_KEYS and path.startswith(key.split(".")[0] + "."):
+            return item  # the options of a plugin the --set switched to
+    return None
+
+
+def _format_validation(
+    exc: ValidationError, source: str, prefix: str = "", overrides: list[str] | None = None
+) -> ConfigError:
+    """One :class:`ConfigError` naming every bad field and where it came from.
+
+    A field written (or made necessary) by a ``--set`` is attributed to that ``--set``, not to
+    the recipe file.
+    """
+    lines, missing = [], []
     for err in exc.errors():
         path = ".".join(str(p) for p in (*filter(None, [prefix]), *err["loc"]))
         got = err.get("input")
         got_text = "" if err["type"] == "missing" or isinstance(got, dict) else f" (got {got!r})"
         msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"]
-        lines.append(f"{path}: {msg}{got_text}")
-    return ConfigError(
-        f"{source}: " + "; ".join(lines),
-        fix="correct these fields (see `l2calib recipe dump` for every key and its default)",
-    )
+        item = _override_for(path, list(overrides or []))
+        origin = f"--set {item}" if item is not None else source
+        lines.append(f"{origin}: {path}: {msg}{got_text}")
+        if err["type"] == "missing":
+            missing.append(path)
+    fix = "correct these fields (see `l2calib recipe dump` for every key and its default)"
+    if missing:
+        fix = (
+            "give " + ", ".join(missing) + " in the recipe or with "
+            + " ".join(f"--set {m}=VALUE" for m in missing)
+            + " (`l2calib plugins` lists each plugin's options)"
+        )  # fmt: skip
+    return ConfigError("; ".join(lines), fix=fix)
 
 
 # --------------------------------------------------------------------------- overrides
@@ -278,15 +307,22 @@ def _set(data: dict[str, Any], item: str) -> Any:
 
 # --------------------------------------------------------------------------- load / dump
 def recipe_from_dict(
-    data: dict[str, Any], source: str = "recipe", check_plugins: bool = True
+    data: dict[str, Any],
+    source: str = "recipe",
+    check_plugins: bool = True,
+    overrides: list[str] | None = None,
 ) -> Recipe:
-    """Validates a recipe dict (and, if asked, each plugin's options)."""
+    """Validates a recipe dict (and, if asked, each plugin's options).
+
+    ``overrides`` are the ``--set`` items applied to ``data``: errors in fields they wrote name
+    them as the source instead of ``source``.
+    """
     try:
         recipe = Recipe.model_validate(data)
     except ValidationError as exc:
-        raise _format_validation(exc, source) from None
+        raise _format_validation(exc, source, overrides=overrides) from None
     if check_plugins:
-        validate_plugin_options(recipe, source)
+        validate_plugin_options(recipe, source, overrides)
     return recipe
 
 
@@ -312,6 +348,11 @@ def resolve_recipe_path(path: str | Path) -> Path:
     )
 
 
+def recipe_source(path: str | Path | None) -> str:
+    """How errors name a recipe: its file, or ``default recipe``."""
+    return "default recipe" if path is None else str(resolve_recipe_path(path))
+
+
 def load_recipe(
     path: str | Path | None, overrides: list[str] | None = None, check_plugins: bool = True
 ) -> Recipe:
@@ -331,18 +372,27 @@ def load_recipe(
             where = f":{mark.line + 1}" if mark else ""
             raise ConfigError(f"{path}{where}: not valid YAML ({exc})") from None
         if loaded is None:
-            loaded = {}
+            raise ConfigError(
+                f"{path}: the recipe file is empty",
+                fix="start from a complete one: `l2calib recipe dump simulator > "
+                f"{path.name}`, then edit it",
+            )
         if not isinstance(loaded, dict):
             raise ConfigError(
                 f"{path}: a recipe must be a YAML mapping, got {type(loaded).__name__}"
             )
         data = loaded
     data = apply_overrides(data, list(overrides or []))
-    return recipe_from_dict(data, source, check_plugins)
+    return recipe_from_dict(data, source, check_plugins, list(overrides or []))
 
 
-def validate_plugin_options(recipe: Recipe, source: str = "recipe") -> Recipe:
-    """Checks every plugin's options against its config model (imports only spec modules)."""
+def validate_plugin_options(
+    recipe: Recipe, source: str = "recipe", overrides: list[str] | None = None
+) -> Recipe:
+    """Checks every plugin's options against its config model (imports only spec modules).
+
+    ``overrides``: the ``--set`` items applied, named as the source of the fields they wrote.
+    """
     from l2calib.plugins import get_plugin
 
     choices = [(s, g, getattr(recipe, s)) for s, g in PLUGIN_SECTIONS.items()]
@@ -352,19 +402,31 @@ def validate_plugin_options(recipe: Recipe, source: str = "recipe") -> Recipe:
         try:
             spec = get_plugin(group, choice.name)
         except PluginError as exc:
-            raise ConfigError(f"{source}: {section}.name: {exc.message}", fix=exc.fix) from None
+            item = _override_for(f"{section}.name", list(overrides or []))
+            origin = f"--set {item}" if item is not None else source
+            raise ConfigError(f"{origin}: {section}.name: {exc.message}", fix=exc.fix) from None
         try:
             spec.config.model_validate(choice.options)
         except ValidationError as exc:
-            raise _format_validation(exc, source, f"{section}.options") from None
+            raise _format_validation(exc, source, f"{section}.options", overrides) from None
     return recipe
 
 
-def filled_plugin_options(recipe: Recipe) -> tuple[Recipe, list[str]]:
+def filled_plugin_options(
+    recipe: Recipe, source: str = "recipe", overrides: list[str] | None = None
+) -> tuple[Recipe, list[str]]:
     """Returns the recipe with every plugin's options completed by its defaults.
+
+    Args:
+        recipe: The validated recipe.
+        source: Where it came from (named in errors).
+        overrides: The ``--set`` items applied (named in errors about the fields they wrote).
 
     Returns:
         The completed recipe and a list of notices for plugins that are not installed.
+
+    Raises:
+        ConfigError: if a plugin's options are invalid (e.g. a required one is missing).
     """
     from l2calib.plugins import get_plugin
 
@@ -379,7 +441,11 @@ def filled_plugin_options(recipe: Recipe) -> tuple[Recipe, list[str]]:
         except PluginError as exc:
             notices.append(f"{section}: {exc} (its options are left as given)")
             continue
-        choice["options"] = spec.config.model_validate(choice["options"]).model_dump(mode="json")
+        try:
+            options = spec.config.model_validate(choice["options"])
+        except ValidationError as exc:
+            raise _format_validation(exc, source, f"{section}.options", overrides) from None
+        choice["options"] = options.model_dump(mode="json")
     return Recipe.model_validate(data), notices
 
 

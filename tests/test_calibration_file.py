@@ -39,6 +39,27 @@ def test_round_trip_and_paste_ready_forms(tmp_path):
     assert unc["undetermined"] == ["rotation about LiDAR y"]
 
 
+def test_unreliable_result_warns_above_the_paste_ready_blocks(tmp_path):
+    reason = "the odometry and the reference disagree by 63 cm"
+    result = CalibrationResult(_T(), status="unreliable", status_reasons=[reason])
+    text = write_calibration(tmp_path / "calibration.yaml", result).read_text()
+    lines = text.splitlines()
+    for block in ("fast_lio:", "urdf:"):
+        above = lines[lines.index(next(x for x in lines if x.startswith(block))) - 1]
+        assert above.startswith("# WARNING: status unreliable")
+    data = yaml.safe_load(text)
+    assert data["status"] == "unreliable" and data["status_reasons"] == [reason]
+    assert "UNRELIABLE" in data["urdf"]  # the warning travels with a pasted URDF origin
+
+
+def test_not_calibrated_result_has_no_paste_ready_blocks(tmp_path):
+    result = CalibrationResult(_T(), status="not-calibrated", status_reasons=["too short"])
+    text = write_calibration(tmp_path / "calibration.yaml", result).read_text()
+    data = yaml.safe_load(text)
+    assert "# NOT CALIBRATED" in text and data["status"] == "not-calibrated"
+    assert "fast_lio" not in data and "urdf" not in data
+
+
 def test_reading_a_file_without_an_extrinsic_names_the_fix(tmp_path):
     p = tmp_path / "x.yaml"
     p.write_text("foo: 1\n")

@@ -1,7 +1,9 @@
 """The ``l2calib`` command: one typer app; each command lives in its own module.
 
 Known errors (:class:`l2calib.errors.L2CalibError`) print one line
-``error: <what> — fix: <how>`` and exit with status 1.
+``error: <what> — fix: <how>`` and exit with status 1; an interrupted run
+(:mod:`l2calib.interrupt`) says where to resume and exits with 130 (SIGINT) or 143 (SIGTERM).
+``calibrate`` exits with 3 when the data could not calibrate (:mod:`l2calib.status`).
 """
 
 from __future__ import annotations
@@ -72,7 +74,9 @@ def format_error(exc: L2CalibError) -> str:
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``l2calib`` console script."""
     try:
-        app(args=argv, standalone_mode=False)
+        status = app(args=argv, standalone_mode=False)  # typer returns Exit codes here
+        if isinstance(status, int) and status:
+            sys.exit(status)
     except L2CalibError as exc:
         typer.echo(format_error(exc), err=True)
         sys.exit(1)

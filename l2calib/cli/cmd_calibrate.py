@@ -6,6 +6,8 @@ from pathlib import Path
 
 import typer
 
+from l2calib.status import EXIT_NOT_CALIBRATED, NOT_CALIBRATED, UNRELIABLE
+
 _SET_HELP = "Override a recipe field, e.g. --set train.seed=3 (repeatable)."
 
 
@@ -30,6 +32,7 @@ def run_calibration(
     from l2calib.cli.live import CalibrationDisplay
     from l2calib.outputs.writer import prepare_out_dir, write_outputs
     from l2calib.pipeline import prepare_data, train_policy
+    from l2calib.status import assess
 
     console = console or Console()
     out = prepare_out_dir(out, resume, force)
@@ -58,11 +61,33 @@ def run_calibration(
 
         R = geo.euler_rpy_to_matrix(torch.deg2rad(torch.tensor(prior.rpy_deg, dtype=torch.float64)))
         before = geo.make_transform(R, torch.tensor(prior.translation_m)).numpy()
+    verdict = assess(result, data, recipe.selection)
+    result.status, result.status_reasons = verdict.status, verdict.reasons
     console.print("[cyan]•[/] writing the report")
     paths = write_outputs(out, recipe, result, outcome.history, data, truth=truth, before=before)
     print_result(console, result, truth=None if truth is None else np.asarray(truth))
     console.print(f"results in [bold]{out}[/]: {', '.join(p.name for p in paths.values())}")
+    print_status(console, result)
     return result
+
+
+def print_status(console, result) -> None:
+    """Prints the run's status (``calibration.yaml`` → ``status``) and what is missing."""
+    if result.status == NOT_CALIBRATED:
+        console.print(
+            "[bold red]status: not-calibrated[/] — the data could not determine the extrinsic; "
+            "calibration.yaml holds the partial result, marked as such, without paste-ready "
+            "blocks. What is missing:"
+        )
+    elif result.status == UNRELIABLE:
+        console.print(
+            "[bold yellow]status: unreliable[/] — check the extrinsic before using it "
+            "(the paste-ready blocks in calibration.yaml carry this warning):"
+        )
+    else:
+        console.print("[bold green]status: calibrated[/]")
+    for reason in result.status_reasons:
+        console.print(f"  - {reason}", highlight=False)
 
 
 def print_result(console, result, truth=None) -> None:
@@ -141,11 +166,27 @@ def calibrate(
     resume: bool = typer.Option(False, "--resume", help="Continue a killed run in --out."),
     force: bool = typer.Option(False, "--force", help="Move an existing --out aside first."),
 ) -> None:
-    """Calibrate T_imu_lidar from recordings, without targets or an initial guess."""
+    """Calibrate T_imu_lidar from recordings, without targets or an initial guess.
+
+    Exit status: 0 when calibration.yaml has status calibrated or unreliable (then its
+    paste-ready blocks carry a warning); 3 when the data could not calibrate (status
+    not-calibrated: partial result, no paste-ready blocks); 1 on an error; 130 / 143 when
+    interrupted by Ctrl-C / SIGTERM (resume with --resume).
+    """
+    import sys
+
+    from l2calib import interrupt
     from l2calib.recipe import load_recipe
 
-    rec = load_recipe(recipe, set_)
-    run_calibration(rec, out, bags=bag, resume=resume, force=force)
+    argv = sys.argv[1:]
+    resume_cmd = interrupt.command_line(argv, add="--resume", drop=("--force",))
+    with interrupt.handling(
+        resume_cmd, interrupt.command_line(argv, add="--force"), exit_process=True
+    ):
+        rec = load_recipe(recipe, set_)
+        result = run_calibration(rec, out, bags=bag, resume=resume, force=force)
+    if result.status == NOT_CALIBRATED:
+        raise typer.Exit(EXIT_NOT_CALIBRATED)
 
 
 def register(app: typer.Typer) -> None:

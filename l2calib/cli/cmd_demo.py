@@ -36,6 +36,18 @@ def demo(
     ),
 ) -> None:
     """Simulate a handheld LiDAR+IMU bag, calibrate it from no initial guess, show the error."""
+    import sys
+
+    from l2calib import interrupt
+
+    with interrupt.handling(
+        restart_command=interrupt.command_line(sys.argv[1:], add="--force"), exit_process=True
+    ) as ctx:
+        _demo(out, seed, duration, set_, force, reference, ctx)
+
+
+def _demo(out, seed, duration, set_, force, reference, ctx) -> None:
+    """The body of :func:`demo`; ``ctx`` learns the resume command once it is known."""
     import time
 
     from rich.console import Console
@@ -89,6 +101,10 @@ def demo(
             "motion-capture file would give it; the extrinsic is still learnt from IMU + LiDAR)"
         )
     recipe = load_recipe("simulator", overrides)
+    # the demo has no --resume of its own: its calibration continues as a plain `calibrate`
+    calib_args = ["calibrate", "simulator", "--bag", str(files["bag"])]
+    calib_args += ["--out", str(out / "calibration")]
+    ctx.resume_command = interrupt_cmd(calib_args, overrides)
     run_calibration(
         recipe,
         out / "calibration",
@@ -102,3 +118,12 @@ def demo(
 def register(app: typer.Typer) -> None:
     """Adds the command to ``app``."""
     app.command("demo")(demo)
+
+
+def interrupt_cmd(args: list[str], overrides: list[str]) -> str:
+    """The ``l2calib calibrate … --resume`` line that continues the demo's calibration."""
+    from l2calib.interrupt import command_line
+
+    for item in overrides:
+        args += ["--set", item]
+    return command_line(args, add="--resume")

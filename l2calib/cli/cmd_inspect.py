@@ -96,8 +96,14 @@ def _render(report: Any, console: Any) -> None:
             f"NavSatFix {r.topic}: {r.stamps.count} fixes, "
             f"{100 * r.fix_share:.0f} % valid, {100 * r.rtk_share:.0f} % RTK"
         )
-    if report.overlap_s is not None:
+    if report.overlap_s is not None and report.overlap_s > 0:
         console.print(f"LiDAR-IMU overlap: {report.overlap_s:.2f} s")
+    elif report.overlap_s is not None:
+        console.print(
+            f"LiDAR-IMU overlap: none — the streams are {-report.overlap_s:.2f} s apart and do "
+            "not overlap (fix: stamp both sensors on one clock; see the error below)",
+            highlight=False,
+        )
     styles = {"error": "bold red", "warning": "yellow", "info": "cyan"}
     for i in report.issues:
         fix = f" — fix: {i.fix}" if i.fix else ""
@@ -140,9 +146,12 @@ def inspect(
     from rich.console import Console
 
     from l2calib.errors import DataError
+    from l2calib.outputs.writable import check_writable
     from l2calib.preflight import inspect_bag
     from l2calib.recipe import load_recipe
 
+    if json_out is not None:
+        check_writable(json_out, "--json", kind="file")
     data = load_recipe(recipe, set_, check_plugins=False).data
     console = Console()
     reports = []

@@ -17,10 +17,10 @@ def dump(
     set_: list[str] = typer.Option([], "--set", help=_SET_HELP),
 ) -> None:
     """Print a complete recipe (every key with its default) as YAML."""
-    from l2calib.recipe import dump_recipe, filled_plugin_options, load_recipe
+    from l2calib.recipe import dump_recipe, filled_plugin_options, load_recipe, recipe_source
 
     loaded = load_recipe(recipe, set_, check_plugins=False)
-    filled, notices = filled_plugin_options(loaded)
+    filled, notices = filled_plugin_options(loaded, recipe_source(recipe), list(set_))
     for notice in notices:
         typer.echo(f"# note: {notice}", err=True)
     typer.echo(dump_recipe(filled), nl=False)

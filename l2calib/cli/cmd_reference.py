@@ -44,10 +44,12 @@ def reference(
     from l2calib.data import NS_PER_S
     from l2calib.errors import ConfigError
     from l2calib.io.trajectory_files import read_trajectory, write_tum
+    from l2calib.outputs.writable import check_writable
     from l2calib.pipeline import compute_references, read_sequences, select_segments
     from l2calib.recipe import load_recipe
 
     console = Console()
+    check_writable(out, "--out", kind="file")  # before minutes of odometry
     rec = load_recipe(recipe, [*set_, *(["selection.enabled=false"] if all_ else [])])
     truth = read_trajectory(compare, body_frame="lidar") if compare is not None else None
     sequences = read_sequences(rec, bag, progress=console.is_terminal)

@@ -49,10 +49,14 @@ def select(
 
     from l2calib.data import NS_PER_S
     from l2calib.io.sequences import open_sequences
+    from l2calib.outputs.writable import check_writable
     from l2calib.recipe import load_recipe
     from l2calib.selection import select_windows
     from l2calib.selection.plot import plot_selection
 
+    check_writable(plot, "--plot", kind="file")
+    if json_out is not None:
+        check_writable(json_out, "--json", kind="file")
     rec = load_recipe(recipe, set_, check_plugins=False)
     cfg = rec.selection
     for value, key, opt in (

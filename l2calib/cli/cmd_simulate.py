@@ -70,10 +70,11 @@ def simulate(
     """Simulate a LiDAR-IMU recording and write it as a bag with its ground truth."""
     from rich.console import Console
 
+    from l2calib.outputs.writable import check_writable
     from l2calib.recipe import apply_overrides
     from l2calib.sim.config import sim_config_from_dict
     from l2calib.sim.lidar_models import get_lidar
-    from l2calib.sim.outputs import bag_options, write_run
+    from l2calib.sim.outputs import bag_options, check_outputs, output_files, write_run
     from l2calib.sim.scenario import simulate as run_simulation
 
     data = {
@@ -94,6 +95,8 @@ def simulate(
         accel_unit=accel_unit,
     )  # fail before simulating
     bag.resolved(get_lidar(config.resolved().lidar.model).vendor)
+    check_writable(out, "--out")
+    check_outputs(output_files(out, bag, not no_bag), overwrite)  # before the sweep, not after
     console = Console(stderr=True)
     run = run_simulation(config, progress=True)
     files = write_run(run, out, bag, overwrite=overwrite, progress=True, write_bag_file=not no_bag)

@@ -18,6 +18,7 @@ import yaml
 
 from l2calib import geometry as geo
 from l2calib.errors import DataError
+from l2calib.status import NOT_CALIBRATED, UNRELIABLE
 
 HEADER = (
     "# l2calib calibration result.\n"
@@ -47,6 +48,9 @@ class CalibrationResult:
     reference_agreement: dict[str, float | None] | None = None
     warnings: list[str] = field(default_factory=list)  # beyond undetermined axes
     extra: dict[str, Any] = field(default_factory=dict)
+    # calibrated / unreliable / not-calibrated, and why (l2calib.status)
+    status: str = "calibrated"
+    status_reasons: list[str] = field(default_factory=list)
 
     @property
     def rpy_deg(self) -> np.ndarray:
@@ -70,6 +74,8 @@ class CalibrationResult:
             return [round(float(v), n) for v in np.asarray(x).reshape(-1)]
 
         out: dict[str, Any] = {
+            "status": self.status,
+            **({"status_reasons": list(self.status_reasons)} if self.status_reasons else {}),
             "T_imu_lidar": [r(row, 9) for row in T],
             "translation_m": r(t),
             "quaternion_xyzw": r(self.quat_xyzw, 9),
@@ -99,16 +105,18 @@ class CalibrationResult:
                 "wall_time_s": round(float(self.wall_time_s), 1),
                 "stop_reason": self.stop_reason,
             },
-            "fast_lio": {  # FAST-LIO: extrinsic_T = LiDAR position in IMU frame, R row-major
+        }
+        if self.status != NOT_CALIBRATED:  # nothing to paste when the data calibrated nothing
+            note = "; UNRELIABLE: read status_reasons first" if self.status == UNRELIABLE else ""
+            out["fast_lio"] = {  # FAST-LIO: extrinsic_T = LiDAR position in IMU frame, R rows
                 "extrinsic_T": r(t),
                 "extrinsic_R": r(T[:3, :3], 9),
-            },
-            "urdf": (
+            }
+            out["urdf"] = (
                 f'<origin xyz="{t[0]:.6f} {t[1]:.6f} {t[2]:.6f}" '
                 f'rpy="{np.radians(rpy[0]):.6f} {np.radians(rpy[1]):.6f} '
-                f'{np.radians(rpy[2]):.6f}"/>  <!-- parent: imu, child: lidar -->'
-            ),
-        }
+                f'{np.radians(rpy[2]):.6f}"/>  <!-- parent: imu, child: lidar{note} -->'
+            )
         out.update(self.extra)
         return out
 
@@ -119,6 +127,16 @@ def _finite(resolution: Any | None, name: str, digits: int) -> list[float | None
         return None
     vals = getattr(resolution, name)
     return [None if not np.isfinite(v) else round(float(v), digits) for v in vals]
+
+
+NOT_CALIBRATED_HEADER = (
+    "# NOT CALIBRATED: the data could not determine this extrinsic (status_reasons says what is\n"
+    "# missing). The values below are a partial result for diagnosis only: do not use them.\n"
+    "# No FAST-LIO / URDF blocks are written.\n"
+)
+UNRELIABLE_COMMENT = (
+    "# WARNING: status unreliable (see status_reasons): check this extrinsic before pasting it\n"
+)
 
 
 class _FlowRowsDumper(yaml.SafeDumper):
@@ -136,8 +154,17 @@ _FlowRowsDumper.add_representer(list, _represent_list)
 def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
     """Writes ``calibration.yaml`` (never over a file the user made: see ``l2calib.outputs``)."""
     path = Path(path)
-    text = HEADER + yaml.dump(result.to_dict(), Dumper=_FlowRowsDumper, sort_keys=False, width=120)
-    path.write_text(text)
+    body = yaml.dump(result.to_dict(), Dumper=_FlowRowsDumper, sort_keys=False, width=120)
+    header = HEADER
+    if result.status == NOT_CALIBRATED:
+        header += NOT_CALIBRATED_HEADER
+    elif result.status == UNRELIABLE:
+        lines = body.splitlines(keepends=True)
+        body = "".join(
+            UNRELIABLE_COMMENT + line if line.startswith(("fast_lio:", "urdf:")) else line
+            for line in lines
+        )
+    path.write_text(header + body)
     return path
 
 

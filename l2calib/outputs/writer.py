@@ -12,9 +12,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from l2calib.errors import ConfigError
+from l2calib.errors import ConfigError, OutputError
 from l2calib.outputs.calibration_file import CalibrationResult, write_calibration
 from l2calib.outputs.report import plot_report, write_html
+from l2calib.outputs.writable import check_writable
 from l2calib.recipe import Recipe, dump_recipe
 
 OWN_FILES = ("calibration.yaml", "checkpoint.pt", "recipe.yaml", "report.png", "report.html")
@@ -24,11 +25,14 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
     """Creates ``out``; refuses to reuse a non-empty one unless resuming or forced.
 
     With ``force``, an existing directory is moved aside to ``<out>.previous-<time>`` (never
-    deleted).
+    deleted). Called before any work, so an unwritable ``out`` fails at once.
+
+    Raises:
+        OutputError: if ``out`` cannot be created or written (:mod:`l2calib.outputs.writable`).
+        ConfigError: if ``out`` is not empty (without ``resume`` or ``force``), or there is
+            nothing to resume.
     """
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise ConfigError(f"{out} exists and is not a directory", fix="choose another --out")
+    out = check_writable(out, "--out")
     if resume:
         if not (out / "checkpoint.pt").is_file():
             raise ConfigError(
@@ -44,8 +48,20 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
                 "move the old directory aside",
             )
         backup = out.with_name(f"{out.name}.previous-{time.strftime('%Y%m%d-%H%M%S')}")
-        shutil.move(str(out), str(backup))
-    out.mkdir(parents=True, exist_ok=True)
+        try:
+            shutil.move(str(out), str(backup))
+        except OSError as exc:
+            raise OutputError(
+                f"--out {out}: cannot move it aside to {backup} ({exc.strerror})",
+                fix="choose a new --out, or move the old directory yourself",
+            ) from None
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(
+            f"--out {out}: cannot create it ({exc.strerror})",
+            fix="pass a --out in a place you can write to",
+        ) from None
     return out
 
 

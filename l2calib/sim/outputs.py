@@ -99,6 +99,36 @@ def bag_options(base: BagOptions | None = None, **overrides: Any) -> BagOptions:
         raise ConfigError(f"bag options: {msg}", fix="see `l2calib simulate --help`") from None
 
 
+def output_files(out: Path, opts: BagOptions, write_bag_file: bool = True) -> dict[str, Path]:
+    """The files :func:`write_run` writes into ``out``, by role."""
+    files = {
+        "extrinsic": out / "extrinsic_gt.yaml",
+        "gt_imu": out / "gt_imu.tum",
+        "gt_lidar": out / "gt_lidar.tum",
+        "scenario": out / "scenario.json",
+    }
+    if write_bag_file:
+        files["bag"] = bag_path(out, opts.format)
+    return files
+
+
+def check_outputs(files: dict[str, Path], overwrite: bool) -> list[Path]:
+    """The outputs that exist already (to be replaced); an error if ``overwrite`` is false.
+
+    ``l2calib simulate`` calls it before simulating, :func:`write_run` again before writing.
+
+    Raises:
+        ConfigError: naming the first existing output, unless ``overwrite``.
+    """
+    existing = [p for p in files.values() if p.exists()]
+    if existing and not overwrite:
+        raise ConfigError(
+            f"{existing[0]} already exists",
+            fix="choose another --out directory or pass --overwrite",
+        )
+    return existing
+
+
 def write_run(
     run: SimRun,
     out_dir: str | Path,
@@ -129,20 +159,8 @@ def write_run(
     out = Path(out_dir)
     opts = bag_options(bag, **bag_overrides)
     opts.resolved(run.lidar_spec.vendor)  # vendor-specific checks before touching the disk
-    files = {
-        "extrinsic": out / "extrinsic_gt.yaml",
-        "gt_imu": out / "gt_imu.tum",
-        "gt_lidar": out / "gt_lidar.tum",
-        "scenario": out / "scenario.json",
-    }
-    if write_bag_file:
-        files["bag"] = bag_path(out, opts.format)
-    existing = [p for p in files.values() if p.exists()]
-    if existing and not overwrite:
-        raise ConfigError(
-            f"{existing[0]} already exists",
-            fix="choose another --out directory or pass --overwrite",
-        )
+    files = output_files(out, opts, write_bag_file)
+    existing = check_outputs(files, overwrite)
     out.mkdir(parents=True, exist_ok=True)
     for p in existing:
         shutil.rmtree(p) if p.is_dir() else p.unlink()

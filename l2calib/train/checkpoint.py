@@ -58,3 +58,11 @@ def load_checkpoint(path: Path, fingerprint: str) -> dict[str, Any]:
             fix="resume with the same recipe, --set overrides and bags, or start a new --out",
         )
     return state
+
+
+def checkpoint_iterations(path: Path) -> int | None:
+    """PPO iterations a checkpoint holds (``None`` if it cannot be read)."""
+    try:
+        return len(torch.load(path, weights_only=False)["outcome"].history)
+    except Exception:  # only used to tell the user where a resume continues
+        return None

@@ -10,6 +10,7 @@ Training stops on convergence (the policy's mode and spread have settled) or on 
 
 from __future__ import annotations
 
+import copy
 import math
 import time
 from collections.abc import Callable
@@ -20,6 +21,7 @@ from typing import Any
 import torch
 
 from l2calib import geometry as geo
+from l2calib.interrupt import Interrupted
 from l2calib.recipe import TrainConfig
 from l2calib.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 
@@ -132,6 +134,8 @@ class PpoTrainer:
             auto_register_policy_transforms=False,  # the policy needs no env transform
         )
         self.outcome = TrainOutcome()
+        self._saved_iterations: int | None = None  # iterations in the checkpoint on disk
+        self._snapshot: dict[str, Any] | None = None  # the state after the last iteration
         self._logger = None
         if out_dir is not None:
             from torchrl.record.loggers.csv import CSVLogger
@@ -192,6 +196,7 @@ class PpoTrainer:
     def resume(self) -> None:
         """Restores the last checkpoint in ``out_dir`` (exact continuation)."""
         state = load_checkpoint(self.out_dir / CHECKPOINT_NAME, self.fingerprint)
+        self._saved_iterations = len(state["outcome"].history)
         self.policy.load_state_dict(state["policy"])
         self.optim.load_state_dict(state["optim"])
         torch.set_rng_state(state["rng"])
@@ -199,10 +204,27 @@ class PpoTrainer:
             gen.set_state(gen_state)
         self.outcome = state["outcome"]
 
-    def checkpoint(self) -> None:
-        """Writes the checkpoint now."""
+    def checkpoint(self, state: dict[str, Any] | None = None) -> None:
+        """Writes the checkpoint now (``state``: a snapshot taken earlier instead of now)."""
         if self.out_dir is not None:
-            save_checkpoint(self.out_dir / CHECKPOINT_NAME, self._state())
+            state = state if state is not None else self._state()
+            save_checkpoint(self.out_dir / CHECKPOINT_NAME, state)
+            self._saved_iterations = len(state["outcome"].history)
+
+    def _save_on_interrupt(self, snapshot: dict[str, Any] | None, exc: Interrupted) -> None:
+        """Checkpoints the last completed iteration and tells ``exc`` what was kept.
+
+        An iteration cut short is dropped: the snapshot taken at the end of the one before is
+        exactly what a periodic checkpoint at that iteration would have written, so a resume
+        gives the same result as an uninterrupted run.
+        """
+        if self.out_dir is None:
+            return
+        if snapshot is not None and len(snapshot["outcome"].history) != self._saved_iterations:
+            self.checkpoint(snapshot)
+        if self._saved_iterations is not None:
+            exc.iteration = self._saved_iterations
+            exc.checkpoint = self.out_dir / CHECKPOINT_NAME
 
     # ------------------------------------------------------------------ loop
     def _update(self, batch, iteration: int) -> dict[str, float]:
@@ -225,7 +247,22 @@ class PpoTrainer:
         return totals
 
     def run(self, progress: Callable[[IterationRecord], None] | None = None) -> TrainOutcome:
-        """Trains until convergence or budget; returns the history and why it stopped."""
+        """Trains until convergence or budget; returns the history and why it stopped.
+
+        Raises:
+            Interrupted: on SIGINT / SIGTERM (:mod:`l2calib.interrupt`), after checkpointing the
+                last completed iteration.
+        """
+        self._snapshot = None
+        try:
+            if self.out_dir is not None:
+                self._snapshot = copy.deepcopy(self._state())
+            return self._run(progress)
+        except Interrupted as exc:
+            self._save_on_interrupt(self._snapshot, exc)
+            raise
+
+    def _run(self, progress: Callable[[IterationRecord], None] | None) -> TrainOutcome:
         t_start = time.monotonic() - self.outcome.wall_s
         it = len(self.outcome.history)
         collector_iter = iter(self.collector)
@@ -249,8 +286,11 @@ class PpoTrainer:
                 for key, value in record.scalars().items():
                     self._logger.log_scalar(key, value, step=it)
             it += 1
-            if self.out_dir is not None and it % self.cfg.checkpoint_every == 0:
-                self.checkpoint()
+            if self.out_dir is not None:
+                # what a checkpoint now would hold, kept for an interruption in the next one
+                self._snapshot = copy.deepcopy(self._state())
+                if it % self.cfg.checkpoint_every == 0:
+                    self.checkpoint(self._snapshot)
             if progress is not None:
                 progress(record)
         self.checkpoint()

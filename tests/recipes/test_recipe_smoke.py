@@ -81,7 +81,12 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     assert result.evaluations == 2 * 8 + n_refine + n_probe
     assert out["refine"]["refined_reward"] >= out["refine"]["policy_mode_reward"]
     assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
-    assert len(out["T_imu_lidar"]) == 4 and "extrinsic_T" in out["fast_lio"]
+    assert len(out["T_imu_lidar"]) == 4
+    # 2 iterations may leave most axes flat: then no paste-ready block is written (l2calib.status)
+    if out["status"] == "not-calibrated":
+        assert "fast_lio" not in out and out["status_reasons"]
+    else:
+        assert "extrinsic_T" in out["fast_lio"]
     # the recipe's own reference (ct-lidar for the MID-360) tracked: no fallback was needed
     assert out["reference"] == {"sources": [recipe.reference.name], "notes": []}
     assert (tmp_path / "out" / "report.png").stat().st_size > 10_000

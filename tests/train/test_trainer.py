@@ -122,6 +122,27 @@ def test_resume_continues_to_the_same_result(fake_backend_env, tmp_path):
     assert torch.equal(torch.as_tensor(full.T_imu_lidar), torch.as_tensor(resumed.T_imu_lidar))
 
 
+def test_interruption_checkpoints_the_last_iteration_and_resumes_to_the_same_result(
+    fake_backend_env, tmp_path
+):
+    from l2calib.interrupt import Interrupted
+
+    recipe = _recipe(max_iterations=5, checkpoint_every=100)  # no periodic checkpoint
+    full, _ = _run(recipe)
+
+    def signal_after_third(record):
+        if record.iteration == 2:
+            raise Interrupted(2)  # what the SIGINT handler raises in the main process
+
+    with pytest.raises(Interrupted) as info:
+        _run(recipe, tmp_path, progress=signal_after_third)
+    assert info.value.iteration == 3 and info.value.attempt == 0
+    assert info.value.checkpoint == tmp_path / "checkpoint.pt" and info.value.exit_status == 130
+    resumed, outcome = _run(recipe, tmp_path, resume=True)
+    assert len(outcome.history) == 5
+    assert torch.equal(torch.as_tensor(full.T_imu_lidar), torch.as_tensor(resumed.T_imu_lidar))
+
+
 def test_resume_refuses_another_recipe(fake_backend_env, tmp_path):
     _run(_recipe(max_iterations=1), tmp_path)
     with pytest.raises(TrainingError, match="another recipe or other input data"):

@@ -1,0 +1,106 @@
+"""Whether a finished run calibrated anything: ``calibrated``, ``unreliable`` or ``not-calibrated``.
+
+``calibration.yaml`` → ``status`` is what scripts and batch summaries read:
+
+* ``not-calibrated`` — the data could not determine the extrinsic: the resolution probe finds
+  the reward flat along at least :data:`MIN_FLAT_AXES` of the six axes, or the selected data is
+  shorter than half a selection window (``selection.window_s``), or the selection found every IMU
+  axis too still to excite. ``l2calib calibrate`` then exits with :data:`EXIT_NOT_CALIBRATED`,
+  writes the partial result marked as such and omits the paste-ready FAST-LIO / URDF blocks.
+* ``unreliable`` — an extrinsic came out, but a warning makes it untrustworthy (the odometry and
+  the reference still disagree after the restarts: :mod:`l2calib.agreement`). The exit status
+  stays 0; the paste-ready blocks carry a warning comment.
+* ``calibrated`` — otherwise (axes the data resolves only weakly are still listed in
+  ``uncertainty.undetermined``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+CALIBRATED, UNRELIABLE, NOT_CALIBRATED = "calibrated", "unreliable", "not-calibrated"
+#: Exit status of ``l2calib calibrate`` when the data could not calibrate.
+EXIT_NOT_CALIBRATED = 3
+#: Flat axes (of 6) from which the result is not presented as a calibration.
+MIN_FLAT_AXES = 4
+#: Selected data below this share of ``selection.window_s`` is far too little.
+MIN_WINDOW_SHARE = 0.5
+
+
+@dataclass
+class Status:
+    """The verdict on one run.
+
+    Attributes:
+        status: ``calibrated``, ``unreliable`` or ``not-calibrated``.
+        reasons: Why (empty when calibrated), each naming what is missing and what to record.
+    """
+
+    status: str = CALIBRATED
+    reasons: list[str] = field(default_factory=list)
+
+
+def flat_axes(resolution: Any | None) -> list[str]:
+    """Names of the axes along which no probe step lowered the reward (``inf`` resolution)."""
+    if resolution is None:
+        return []
+    rows = [
+        ("rotation about", resolution.rotation_deg),
+        ("translation along", resolution.translation_m),
+    ]
+    return [
+        f"{kind} {a}"
+        for kind, vals in rows
+        for a, v in zip("xyz", vals, strict=True)
+        if np.isinf(v)
+    ]
+
+
+def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
+    """The status of ``result`` computed on ``data`` (a ``PreparedData``).
+
+    Args:
+        result: The :class:`~l2calib.outputs.calibration_file.CalibrationResult`.
+        data: The prepared data (its segments and, when enabled, its selection).
+        selection_cfg: The recipe's ``selection`` section (window length and thresholds).
+    """
+    missing: list[str] = []
+    window = float(selection_cfg.window_s)
+    total = float(sum(s.duration_s for s in data.segments))
+    if total < MIN_WINDOW_SHARE * window:
+        missing.append(
+            f"only {total:.1f} s of usable data, far below one selection window "
+            f"(selection.window_s = {window:g} s): record at least {window:g} s of motion "
+            f"(better {float(selection_cfg.budget_s):g} s, selection.budget_s)"
+        )
+    sel = data.selection
+    if sel is not None:
+        gyro = np.asarray(sel.gyro_rms_rad_s, dtype=float)
+        accel = np.asarray(sel.accel_rms_m_s2, dtype=float)
+        if (gyro < selection_cfg.min_gyro_rad_s).all() and (
+            accel < selection_cfg.min_accel_m_s2
+        ).all():
+            missing.append(
+                "the selected data is too still: RMS angular rate "
+                f"{_triple(gyro)} rad/s (needs {selection_cfg.min_gyro_rad_s:g} per axis) and "
+                f"gravity-free acceleration {_triple(accel)} m/s^2 (needs "
+                f"{selection_cfg.min_accel_m_s2:g}): swing the rig about and along all three axes"
+            )
+    flat = flat_axes(result.resolution)
+    if len(flat) >= MIN_FLAT_AXES:
+        missing.append(
+            f"the reward is flat along {len(flat)} of 6 axes ({', '.join(flat)}): the data does "
+            "not constrain them; record motion that rotates about and accelerates along them"
+        )
+    if missing:
+        return Status(NOT_CALIBRATED, missing)
+    if result.warnings:
+        return Status(UNRELIABLE, list(result.warnings))
+    return Status()
+
+
+def _triple(v: np.ndarray) -> str:
+    return "/".join(f"{x:.2f}" for x in v)

@@ -1,0 +1,278 @@
+"""Bad inputs a new user produces, each rebuilt from a short simulated bag: exit status + message.
+
+A regression suite for issue 26 (``docs/reliability.md`` has the table): every fault ends in a
+clear one-line ``error: … — fix: …`` (exit 1), a documented status, or a resumable interruption,
+never in a traceback or a silent success. Each case runs the real ``l2calib`` command in a
+subprocess.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import yaml
+
+#: Small, fast training settings on the simulator recipe with the simulated truth as reference.
+FAST = [
+    "--set", "train.candidates_per_iteration=8", "--set", "train.refine_rounds=1",
+    "--set", "train.restarts=0", "--set", "selection.window_s=3", "--set", "selection.budget_s=3",
+]  # fmt: skip
+
+
+def l2calib(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
+    """Runs ``l2calib ARGS`` in a subprocess (text output captured)."""
+    cmd = [sys.executable, "-m", "l2calib.cli.app", *map(str, args)]
+    return subprocess.run(cmd, capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+def one_error_line(proc: subprocess.CompletedProcess) -> str:
+    """The single ``error: … — fix: …`` line of a failed command (and no traceback)."""
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("error: ") and " — fix: " in lines[0], lines[0]
+    return lines[0]
+
+
+def simulated(out: Path, duration_s: float) -> dict[str, str]:
+    """A short simulated hand-held OS1-16 + VN100 bag with its ground truth."""
+    from l2calib.sim import SimConfig, simulate, write_run
+
+    cfg = SimConfig.model_validate(
+        {
+            "duration_s": duration_s,
+            "seed": 4,
+            "lidar": {"model": "ouster-os1-16", "columns": 256},
+            "imu": {"model": "vn100"},
+        }
+    )
+    return write_run(simulate(cfg), out)
+
+
+@pytest.fixture(scope="module")
+def sim6(tmp_path_factory) -> dict[str, str]:
+    return simulated(tmp_path_factory.mktemp("sim6"), 6.0)
+
+
+def gt_reference(files: dict[str, str]) -> list[str]:
+    return [
+        "--set",
+        "reference.name=gt-file",
+        "--set",
+        f"reference.options.path={files['gt_lidar']}",
+    ]
+
+
+def rewrite_bag(src: str, dst: Path, shift_imu_s: float) -> Path:
+    """Copies a simulated ROS1 bag, moving every IMU header stamp by ``shift_imu_s``."""
+    from rosbags.rosbag1 import Reader, Writer
+    from rosbags.typesys import Stores, get_typestore
+
+    store = get_typestore(Stores.ROS1_NOETIC)
+    shift_ns = int(round(shift_imu_s * 1e9))
+    with Reader(src) as reader, Writer(dst) as writer:
+        conns = {
+            c.id: writer.add_connection(c.topic, c.msgtype, typestore=store)
+            for c in reader.connections
+        }
+        for conn, t_ns, raw in reader.messages():
+            if conn.msgtype == "sensor_msgs/msg/Imu":
+                msg = store.deserialize_ros1(raw, conn.msgtype)
+                stamp = msg.header.stamp.sec * 10**9 + msg.header.stamp.nanosec + shift_ns
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 10**9)
+                raw = store.serialize_ros1(msg, conn.msgtype)
+            writer.write(conns[conn.id], t_ns, raw)
+    return dst
+
+
+# --------------------------------------------------------------------------- unwritable --out
+UNWRITABLE = {
+    "missing /proc entry": "/proc/l2calib-x",
+    "sysfs": "/sys/l2calib-x",
+    "below a file": "/etc/hostname/l2calib-x",
+}
+
+
+@pytest.mark.parametrize("where", sorted(UNWRITABLE))
+def test_unwritable_out_fails_before_calibrating(sim6, where):
+    out = UNWRITABLE[where]
+    t0 = time.monotonic()
+    proc = l2calib("calibrate", "simulator", "--bag", sim6["bag"], "--out", out, *FAST)
+    line = one_error_line(proc)
+    assert f"--out {out}:" in line and "fix: pass a --out in a place you can write to" in line
+    assert "reading recordings" not in proc.stdout  # before any work
+    assert time.monotonic() - t0 < 60
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ["demo", "--duration", "2"],
+        ["simulate", "--duration", "2"],
+        ["reference", "simulator", "--bag", "{bag}"],
+    ],
+    ids=["demo", "simulate", "reference"],
+)
+def test_unwritable_out_of_other_commands(sim6, args):
+    args = [a.format(bag=sim6["bag"]) for a in args]
+    proc = l2calib(*args, "--out", "/proc/l2calib-x/out.tum")
+    line = one_error_line(proc)
+    assert "--out /proc/l2calib-x/out.tum:" in line and "cannot write in /proc" in line
+    assert "simulating" not in proc.stdout + proc.stderr
+
+
+def test_unwritable_json_of_inspect(sim6):
+    line = one_error_line(l2calib("inspect", sim6["bag"], "--json", "/proc/l2calib-x/r.json"))
+    assert "--json /proc/l2calib-x/r.json:" in line
+
+
+@pytest.mark.skipif(os.geteuid() == 0, reason="root writes into read-only directories")
+def test_read_only_out_directory(sim6, tmp_path):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o555)
+    line = one_error_line(
+        l2calib("calibrate", "simulator", "--bag", sim6["bag"], "--out", ro / "c", *FAST)
+    )
+    assert f"--out {ro / 'c'}:" in line and "Permission denied" in line
+
+
+# --------------------------------------------------------------------------- recipes and --set
+def test_recipe_dump_with_a_plugin_missing_its_required_option():
+    line = one_error_line(l2calib("recipe", "dump", "simulator", "--set", "reference.name=gt-file"))
+    assert "--set reference.name=gt-file: reference.options.path: Field required" in line
+    assert "--set reference.options.path=VALUE" in line  # the fix names the field
+    assert "recipes/simulator.yaml" not in line  # the built-in file is not the source
+
+
+def test_a_bad_set_value_is_attributed_to_the_set():
+    line = one_error_line(l2calib("recipe", "check", "simulator", "--set", "train.seed=abc"))
+    assert line.startswith("error: --set train.seed=abc: train.seed: Input should be")
+    assert "simulator.yaml" not in line
+
+
+def test_a_bad_value_in_the_file_still_names_the_file(tmp_path):
+    p = tmp_path / "r.yaml"
+    p.write_text("train:\n  seed: abc\n")
+    line = one_error_line(l2calib("recipe", "check", p, "--set", "train.workers=1"))
+    assert f"{p}: train.seed" in line and "--set" not in line.split(" — fix")[0]
+
+
+def test_empty_recipe_file_fails_check(tmp_path):
+    p = tmp_path / "empty.yaml"
+    p.write_text("")
+    line = one_error_line(l2calib("recipe", "check", p))
+    assert f"{p}: the recipe file is empty" in line and "l2calib recipe dump" in line
+
+
+# --------------------------------------------------------------------------- inspect
+def test_normal_bag_has_no_clock_warning(sim6):
+    proc = l2calib("inspect", sim6["bag"])
+    assert proc.returncode == 0, proc.stderr
+    assert "different clocks" not in proc.stdout and "LiDAR-IMU overlap: 6.00 s" in proc.stdout
+
+
+def test_disjoint_streams_say_they_do_not_overlap(sim6, tmp_path):
+    bag = rewrite_bag(sim6["bag"], tmp_path / "disjoint.bag", shift_imu_s=-990.0)
+    proc = l2calib("inspect", bag)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "overlap: -" not in proc.stdout
+    assert "LiDAR-IMU overlap: none" in proc.stdout and "do not overlap" in proc.stdout
+    last = proc.stderr.strip().splitlines()[-1]
+    assert last.startswith("error: ") and "time ranges do not overlap" in last
+    assert "fix: both sensors must be stamped on the same clock" in last
+
+
+# --------------------------------------------------------------------------- simulate
+def test_simulate_refuses_an_existing_out_before_simulating(sim6):
+    out = Path(sim6["bag"]).parent
+    t0 = time.monotonic()
+    proc = l2calib("simulate", "--out", out, "--duration", "60")
+    line = one_error_line(proc)
+    assert "already exists" in line and "--overwrite" in line
+    assert "scans" not in proc.stderr  # no simulation summary: it stopped before the sweep
+    assert time.monotonic() - t0 < 60
+
+
+# --------------------------------------------------------------------------- too little data
+@pytest.mark.slow
+def test_one_second_recording_is_not_calibrated(tmp_path):
+    files = simulated(tmp_path / "sim1", 1.0)
+    out = tmp_path / "out"
+    args = [*gt_reference(files), "--set", "train.max_iterations=2"]
+    proc = l2calib("calibrate", "simulator", "--bag", files["bag"], "--out", out, *FAST, *args)
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    text = " ".join(proc.stdout.split())  # rich wraps long lines
+    assert (
+        "status: not-calibrated" in text and "usable data, far below one selection window" in text
+    )
+    written = (out / "calibration.yaml").read_text()
+    assert "# NOT CALIBRATED" in written
+    data = yaml.safe_load(written)
+    assert data["status"] == "not-calibrated" and data["status_reasons"]
+    assert "fast_lio" not in data and "urdf" not in data
+
+
+# --------------------------------------------------------------------------- interruptions
+def _start_calibration(files: dict[str, str], out: Path) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "l2calib.cli.app", "calibrate", "simulator"]
+    cmd += ["--bag", files["bag"], "--out", str(out), *FAST, *gt_reference(files)]
+    cmd += ["--set", "train.max_iterations=500", "--set", "train.checkpoint_every=1"]
+    # its own process group, as a shell job: a Ctrl-C reaches the workers too
+    return subprocess.Popen(
+        cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, start_new_session=True
+    )
+
+
+def _interrupt_after_first_checkpoint(proc: subprocess.Popen, out: Path, sig: int):
+    deadline = time.monotonic() + 240
+    while not (out / "checkpoint.pt").is_file():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline
+        time.sleep(0.1)
+    t0 = time.monotonic()
+    os.killpg(proc.pid, sig)
+    stdout, stderr = proc.communicate(timeout=60)
+    return stdout, stderr, time.monotonic() - t0
+
+
+@pytest.mark.slow
+def test_sigint_keeps_the_checkpoint_and_resume_finishes(sim6, tmp_path):
+    out = tmp_path / "out"
+    proc = _start_calibration(sim6, out)
+    _, stderr, waited = _interrupt_after_first_checkpoint(proc, out, signal.SIGINT)
+    assert proc.returncode == 130, stderr
+    assert waited < 5.0
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr
+    line = stderr.strip().splitlines()[-1]
+    assert line.startswith("interrupted at iteration ") and "(SIGINT;" in line
+    head, _, command = line.partition(" — resume with: ")
+    assert command.startswith("l2calib calibrate simulator --bag ") and command.endswith("--resume")
+    assert (out / "checkpoint.pt").is_file()
+    iteration = int(head.split()[3])
+    # the printed command, with a budget the run has already reached (budgets may change)
+    resumed = l2calib(*command.split()[1:], "--set", f"train.max_iterations={iteration}")
+    assert resumed.returncode in (0, 3), resumed.stdout + resumed.stderr
+    text = " ".join(resumed.stdout.split())
+    assert f"resuming the first PPO run (seed 0) at iteration {iteration} from" in text
+    assert yaml.safe_load((out / "calibration.yaml").read_text())["training"]["iterations"] == (
+        iteration
+    )
+
+
+@pytest.mark.slow
+def test_sigterm_exits_143(sim6, tmp_path):
+    out = tmp_path / "out"
+    proc = _start_calibration(sim6, out)
+    _, stderr, waited = _interrupt_after_first_checkpoint(proc, out, signal.SIGTERM)
+    assert proc.returncode == 143, stderr
+    assert waited < 5.0 and "Traceback" not in stderr
+    assert "(SIGTERM;" in stderr and "--resume" in stderr

@@ -1,0 +1,53 @@
+"""l2calib.status: when a finished run is calibrated, unreliable or not calibrated."""
+
+from __future__ import annotations
+
+import math
+from types import SimpleNamespace
+
+import numpy as np
+
+from l2calib.outputs.calibration_file import CalibrationResult
+from l2calib.recipe import SelectionConfig
+from l2calib.sensitivity import AxisResolution
+from l2calib.status import assess, flat_axes
+
+CFG = SelectionConfig(window_s=5.0, budget_s=10.0)
+
+
+def _data(seconds: float, gyro=(0.5, 0.5, 0.5), accel=(1.0, 1.0, 1.0)):
+    selection = SimpleNamespace(gyro_rms_rad_s=np.array(gyro), accel_rms_m_s2=np.array(accel))
+    return SimpleNamespace(segments=[SimpleNamespace(duration_s=seconds)], selection=selection)
+
+
+def _result(flat: int = 0, warnings=()) -> CalibrationResult:
+    values = [math.inf] * flat + [0.1] * (6 - flat)
+    res = AxisResolution(values[:3], [v / 100 for v in values[3:]], 0.9)
+    return CalibrationResult(np.eye(4), resolution=res, warnings=list(warnings))
+
+
+def test_enough_data_and_sharp_axes_is_calibrated():
+    status = assess(_result(flat=1), _data(10.0), CFG)
+    assert status.status == "calibrated" and status.reasons == []
+
+
+def test_four_flat_axes_are_not_calibrated():
+    status = assess(_result(flat=4), _data(10.0), CFG)
+    assert status.status == "not-calibrated"
+    assert "flat along 4 of 6 axes" in status.reasons[0]
+    assert flat_axes(_result(flat=4).resolution)[:3] == [
+        "rotation about x", "rotation about y", "rotation about z",
+    ]  # fmt: skip
+
+
+def test_too_little_or_too_still_data_is_not_calibrated():
+    short = assess(_result(), _data(0.9), CFG)
+    assert short.status == "not-calibrated"
+    assert short.reasons[0].startswith("only 0.9 s of usable data")
+    still = assess(_result(), _data(10.0, gyro=(0.01,) * 3, accel=(0.02,) * 3), CFG)
+    assert still.status == "not-calibrated" and "too still" in still.reasons[0]
+
+
+def test_a_reference_disagreement_is_unreliable():
+    status = assess(_result(warnings=["disagree by 63 cm"]), _data(10.0), CFG)
+    assert status.status == "unreliable" and status.reasons == ["disagree by 63 cm"]
