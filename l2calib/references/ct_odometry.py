@@ -143,7 +143,8 @@ class CtLidarOdometry:
         where those lie within ``line_flat_m`` of it (a far ground ring of a 16-beam LiDAR: a
         line in the map, on the scan point's surface) and the point within ``line_gate_m``.
         """
-        world = m.transform(s.points, s.tau)
+        R, t = m.poses(s.tau)  # once: the world points and the scan-line normals both need R
+        world = np.einsum("nij,nj->ni", R, s.points) + t
         planes = self.map.associate(world, gate)
         if s.normal is None or not lines:
             return planes
@@ -151,8 +152,7 @@ class CtLidarOdometry:
         rest[planes.index] = False
         rest &= np.isfinite(s.normal[:, 0])
         rest = np.flatnonzero(rest)
-        R, _ = m.poses(s.tau[rest])
-        n = np.einsum("nij,nj->ni", R, s.normal[rest])
+        n = np.einsum("nij,nj->ni", R[rest], s.normal[rest])
         found, off = self.map.on_plane(
             world[rest], n, self.o.line_match_m, self.o.line_neighbours, self.o.line_flat_m
         )
@@ -188,13 +188,13 @@ class CtLidarOdometry:
 
     def _predict(
         self, m: ScanMotion, P: np.ndarray, dt: float, alpha_noise: float | None = None
-    ) -> tuple[ScanMotion, np.ndarray, np.ndarray]:
-        """The next scan's prior: motion, covariance ``[18, 18]`` and transition ``F``."""
+    ) -> tuple[ScanMotion, np.ndarray]:
+        """The next scan's prior: motion and covariance ``[18, 18]``."""
         pred, F = m.propagate(dt)
         q = self.q_density.copy()
         if alpha_noise is not None:
             q[9:12] = alpha_noise**2
-        return pred, F @ P @ F.T + np.diag(q * dt), F
+        return pred, F @ P @ F.T + np.diag(q * dt)
 
     def _jacobian(self, m: ScanMotion, p: np.ndarray, tau: np.ndarray, n: np.ndarray) -> np.ndarray:
         """``[N, 18]`` derivative of the point-to-plane distances (update order of retract)."""
@@ -361,9 +361,7 @@ class CtLidarOdometry:
         motions = [start]
         for k in range(1, last + 1):
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
-            pred, P_pred, _ = self._predict(
-                motions[-1], P, dt, self._alpha_noise(motions, stamps, k)
-            )
+            pred, P_pred = self._predict(motions[-1], P, dt, self._alpha_noise(motions, stamps, k))
             m, P = self._solve(prepared[k], pred, P_pred)
             now = float(stamps[k] - stamps[0]) / NS_PER_S
             self.last_old_residual, self.last_old_info = self._old_residual(prepared[k], m, now)
