@@ -54,17 +54,28 @@ def read_sequences(recipe: Recipe, bags: Sequence[Path], progress: bool = False)
 
 
 def select_segments(recipe: Recipe, sequences: Sequence[DataSequence]):
-    """Segments to calibrate on: the selection's windows, or every sequence whole."""
+    """Segments to calibrate on: the selection's windows, or every sequence whole.
+
+    Raises:
+        DataError: no window is eligible (the message names the gaps, dropped scans and still
+            periods that rule them out), or, with the selection disabled, an IMU gap inside a
+            recording (named with its topic, time and length).
+    """
+    from l2calib.selection.gaps import check_imu_gaps_whole, no_window_reason
+
     if not recipe.selection.enabled:
+        check_imu_gaps_whole(sequences)
         return [seq.segment() for seq in sequences], None
     from l2calib.selection.greedy import select_windows
 
     selection = select_windows(sequences, recipe.selection)
     if not selection.chosen:
+        window = selection.config.window_s
         raise DataError(
-            "the data selection found no informative window (the recordings are still or too "
-            "short for selection.window_s)",
-            fix="record some motion, lower selection.window_s, or set selection.enabled=false",
+            "the data selection found no window to calibrate on (each is still or spans a gap): "
+            + no_window_reason(sequences, selection.windows, window),
+            fix=f"record at least {window:g} s of motion free of gaps (check the drivers for "
+            "dropped messages), lower selection.window_s, or set selection.enabled=false",
         )
     return selection.segments(sequences), selection
 

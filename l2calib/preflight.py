@@ -4,7 +4,9 @@
 (rate, span, gaps, non-monotonic stamps, header vs record time), the LiDAR's per-point time
 convention and invalid-point share, the IMU's units with evidence, gravity and rotation rates,
 and the LiDAR–IMU overlap. Problems become :class:`Issue` objects (error / warning / info) that
-say what to change; the detected settings are returned as a recipe ``data`` section.
+say what to change; the detected settings are returned as a recipe ``data`` section. Given the
+recipe's ``selection`` section, it also warns when the recording is too short or too still to
+calibrate (:mod:`l2calib.preflight_motion`).
 """
 
 from __future__ import annotations
@@ -30,7 +32,8 @@ from l2calib.io.navsat import STATUS_GBAS_FIX, NavSatTopicReader
 from l2calib.io.sequences import IMU_GAP_FACTOR, IMU_MIN_GAP_S, LIDAR_GAP_FACTOR, _track
 from l2calib.io.stamps import StampStats, stamp_stats
 from l2calib.preflight_checks import Issue, check_imu, check_lidar, check_pair
-from l2calib.recipe import DataConfig
+from l2calib.preflight_motion import MotionReport, motion_check
+from l2calib.recipe import DataConfig, SelectionConfig
 
 
 @dataclass
@@ -89,6 +92,7 @@ class BagReport:
     overlap_s: float | None = None
     issues: list[Issue] = field(default_factory=list)
     suggested: dict = field(default_factory=dict)
+    motion: MotionReport | None = None
 
     @property
     def errors(self) -> list[Issue]:
@@ -162,7 +166,10 @@ def _pick(reports: list, wanted: str) -> object | None:
 
 
 def inspect_bag(
-    path: str | Path, data: DataConfig | None = None, progress: bool = False
+    path: str | Path,
+    data: DataConfig | None = None,
+    progress: bool = False,
+    selection: SelectionConfig | None = None,
 ) -> BagReport:
     """Streams one bag and reports its topics, conventions, units and problems.
 
@@ -170,6 +177,8 @@ def inspect_bag(
         path: Bag (ROS1 file, ROS2 directory, ``.db3`` or ``.mcap``).
         data: Recipe ``data`` section: its overrides apply, its topics are preferred.
         progress: Show a rich progress bar.
+        selection: Recipe ``selection`` section: with it, the motion is checked against the
+            selection's window and thresholds (``report.motion``, warnings when too little).
 
     Raises:
         DataError: if the path is not a bag.
@@ -204,7 +213,26 @@ def inspect_bag(
     report.imu = [_imu_report(readers[t.name], data) for t in imu_t]
     report.navsat = [_navsat_report(readers[t.name]) for t in nav_t]
     _collect_issues(report, data, lidar_t, imu_t)
+    if selection is not None:
+        _check_motion(report, readers, data, selection)
     return report
+
+
+def _check_motion(
+    report: BagReport, readers: dict, data: DataConfig, selection: SelectionConfig
+) -> None:
+    """Adds the motion numbers and too-short / too-still warnings (if the streams are usable)."""
+    lidar, imu = _pick(report.lidar, data.lidar.topic), _pick(report.imu, data.imu.topic)
+    if lidar is None or imu is None or imu.units is None or report.errors:
+        return
+    if lidar.convention is None or not (report.overlap_s or 0) > 0:
+        return
+    report.motion, issues = motion_check(
+        report.path, readers[lidar.topic], readers[imu.topic], imu.units, selection
+    )
+    report.issues[:0] = issues  # warnings first among warnings: they decide whether to go on
+    order = {"error": 0, "warning": 1, "info": 2}
+    report.issues.sort(key=lambda i: order[i.severity])
 
 
 def _collect_issues(report: BagReport, data: DataConfig, lidar_t: list, imu_t: list) -> None:

@@ -59,6 +59,51 @@ def flat_axes(resolution: Any | None) -> list[str]:
     ]
 
 
+def data_shortfalls(
+    total_s: float, excitation: tuple[Any, Any] | None, selection_cfg: Any
+) -> list[tuple[str, str]]:
+    """Why data is clearly too short or too still to calibrate, before or after training.
+
+    The same rules serve ``calibrate``'s status and ``inspect``'s warnings.
+
+    Args:
+        total_s: Usable (selected) data (s).
+        excitation: ``(gyro_rms_rad_s, accel_rms_m_s2)`` per IMU axis over that data, or
+            ``None`` (not known: the selection was disabled).
+        selection_cfg: The recipe's ``selection`` section (window length and thresholds).
+
+    Returns:
+        ``(what is missing, what to record)`` pairs; empty when the data may calibrate.
+    """
+    out: list[tuple[str, str]] = []
+    window = float(selection_cfg.window_s)
+    if total_s < MIN_WINDOW_SHARE * window:
+        out.append(
+            (
+                f"only {total_s:.1f} s of usable data, far below one selection window "
+                f"(selection.window_s = {window:g} s)",
+                f"record at least {window:g} s of motion "
+                f"(better {float(selection_cfg.budget_s):g} s, selection.budget_s)",
+            )
+        )
+    if excitation is not None:
+        gyro = np.asarray(excitation[0], dtype=float)
+        accel = np.asarray(excitation[1], dtype=float)
+        if (gyro < selection_cfg.min_gyro_rad_s).all() and (
+            accel < selection_cfg.min_accel_m_s2
+        ).all():
+            out.append(
+                (
+                    "the selected data is too still: RMS angular rate "
+                    f"{_triple(gyro)} rad/s (needs {selection_cfg.min_gyro_rad_s:g} per axis) "
+                    f"and gravity-free acceleration {_triple(accel)} m/s^2 (needs "
+                    f"{selection_cfg.min_accel_m_s2:g})",
+                    "swing the rig about and along all three axes",
+                )
+            )
+    return out
+
+
 def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
     """The status of ``result`` computed on ``data`` (a ``PreparedData``).
 
@@ -67,28 +112,10 @@ def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
         data: The prepared data (its segments and, when enabled, its selection).
         selection_cfg: The recipe's ``selection`` section (window length and thresholds).
     """
-    missing: list[str] = []
-    window = float(selection_cfg.window_s)
     total = float(sum(s.duration_s for s in data.segments))
-    if total < MIN_WINDOW_SHARE * window:
-        missing.append(
-            f"only {total:.1f} s of usable data, far below one selection window "
-            f"(selection.window_s = {window:g} s): record at least {window:g} s of motion "
-            f"(better {float(selection_cfg.budget_s):g} s, selection.budget_s)"
-        )
     sel = data.selection
-    if sel is not None:
-        gyro = np.asarray(sel.gyro_rms_rad_s, dtype=float)
-        accel = np.asarray(sel.accel_rms_m_s2, dtype=float)
-        if (gyro < selection_cfg.min_gyro_rad_s).all() and (
-            accel < selection_cfg.min_accel_m_s2
-        ).all():
-            missing.append(
-                "the selected data is too still: RMS angular rate "
-                f"{_triple(gyro)} rad/s (needs {selection_cfg.min_gyro_rad_s:g} per axis) and "
-                f"gravity-free acceleration {_triple(accel)} m/s^2 (needs "
-                f"{selection_cfg.min_accel_m_s2:g}): swing the rig about and along all three axes"
-            )
+    excitation = None if sel is None else (sel.gyro_rms_rad_s, sel.accel_rms_m_s2)
+    missing = [f"{what}: {fix}" for what, fix in data_shortfalls(total, excitation, selection_cfg)]
     flat = flat_axes(result.resolution)
     if len(flat) >= MIN_FLAT_AXES:
         missing.append(

@@ -45,7 +45,11 @@ def run_calibration(
     )
     with CalibrationDisplay(console, iterations) as display:
         data = prepare_data(recipe, bags=bags, sequences=sequences, stage=display.stage)
-        for note in data.notes:
+        for seq in data.sequences:
+            for warning in seq.meta.get("warnings", []):
+                display.stage(f"[yellow]warning[/]: {warning}")
+        notes = [*(data.selection.notes if data.selection is not None else []), *data.notes]
+        for note in notes:
             display.stage(f"[yellow]note[/]: {note}")
         total = sum(s.duration_s for s in data.segments)
         display.stage(f"{len(data.segments)} segment(s), {total:.1f} s of data")

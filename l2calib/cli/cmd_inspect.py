@@ -104,6 +104,15 @@ def _render(report: Any, console: Any) -> None:
             "not overlap (fix: stamp both sensors on one clock; see the error below)",
             highlight=False,
         )
+    m = report.motion
+    if m is not None:
+        g, a = (" / ".join(f"{v:.2f}" for v in x) for x in (m.gyro_rms_rad_s, m.accel_rms_m_s2))
+        console.print(
+            f"motion: {m.moving_s:.1f} s of {m.overlap_s:.1f} s overlap; selectable "
+            f"{m.selected_s:.1f} s (selection.window_s {m.window_s:g} s, budget_s "
+            f"{m.budget_s:g} s); RMS rate x/y/z {g} rad/s, gravity-free acceleration {a} m/s^2",
+            highlight=False,
+        )
     styles = {"error": "bold red", "warning": "yellow", "info": "cyan"}
     for i in report.issues:
         fix = f" — fix: {i.fix}" if i.fix else ""
@@ -142,7 +151,7 @@ def inspect(
     set_: list[str] = typer.Option([], "--set", help=_SET_HELP),
     json_out: Path | None = typer.Option(None, "--json", help="Also write the reports as JSON."),
 ) -> None:
-    """Check bags before calibrating: topics, rates, gaps, time fields, units, overlap."""
+    """Check bags before calibrating: topics, rates, gaps, time fields, units, overlap, motion."""
     from rich.console import Console
 
     from l2calib.errors import DataError
@@ -152,11 +161,11 @@ def inspect(
 
     if json_out is not None:
         check_writable(json_out, "--json", kind="file")
-    data = load_recipe(recipe, set_, check_plugins=False).data
+    rec = load_recipe(recipe, set_, check_plugins=False)
     console = Console()
     reports = []
     for bag in bags:
-        report = inspect_bag(bag, data, progress=console.is_terminal)
+        report = inspect_bag(bag, rec.data, progress=console.is_terminal, selection=rec.selection)
         _render(report, console)
         reports.append(report)
     if json_out is not None:

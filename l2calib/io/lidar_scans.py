@@ -259,15 +259,25 @@ class LidarTopicReader:
     def scan_index(self) -> dict[str, np.ndarray]:
         """Index arrays over the messages that kept points, sorted by stamp.
 
-        Keys: ``stamp_ns``, ``end_ns``, ``record_ns``, ``header_ns``, ``n_points``.
+        Keys: ``stamp_ns``, ``end_ns``, ``record_ns``, ``header_ns``, ``n_points``, and
+        ``empty_before``: how many empty messages (no valid point: all NaN, zero or out of
+        range) arrived right before each kept scan, since the previous kept one.
         """
-        keep = [i for i, s in enumerate(self.stats) if s.n_kept > 0]
+        keep, empty_before, run = [], [], 0
+        for i, s in enumerate(self.stats):
+            if s.n_kept > 0:
+                keep.append(i)
+                empty_before.append(run)
+                run = 0
+            else:
+                run += 1
         out = {
             "stamp_ns": np.array([self.stats[i].stamp_ns for i in keep], dtype=np.int64),
             "end_ns": np.array([self.stats[i].end_ns for i in keep], dtype=np.int64),
             "record_ns": np.array([self.record_ns[i] for i in keep], dtype=np.int64),
             "header_ns": np.array([self.header_ns[i] for i in keep], dtype=np.int64),
             "n_points": np.array([self.stats[i].n_kept for i in keep], dtype=np.int64),
+            "empty_before": np.array(empty_before, dtype=np.int64),
         }
         order = np.argsort(out["stamp_ns"], kind="stable")
         return {k: v[order] for k, v in out.items()}

@@ -25,7 +25,7 @@ from l2calib.io.bag_reader import IMU_TYPE, LIDAR_TYPES, Bag, BagMessage
 from l2calib.io.imu_reader import ImuTopicReader, detect_units, to_imu_samples
 from l2calib.io.lidar_conventions import TimeConvention
 from l2calib.io.lidar_scans import LidarTopicReader, decode_lidar, to_scan
-from l2calib.io.stamps import stamp_stats
+from l2calib.io.stamps import MAX_BRIDGED_EMPTY_SCANS, lidar_gaps, stamp_stats
 from l2calib.recipe import DataConfig
 
 log = logging.getLogger("l2calib.io")
@@ -43,8 +43,8 @@ class BagScans:
         topic: LiDAR topic.
         convention: Per-point time convention used to stamp the points.
         min_range_m, max_range_m: Range limits applied to every point.
-        index: ``stamp_ns``, ``end_ns``, ``record_ns``, ``header_ns``, ``n_points`` arrays of
-            the scans that kept points, sorted by stamp.
+        index: ``stamp_ns``, ``end_ns``, ``record_ns``, ``header_ns``, ``n_points``,
+            ``empty_before`` arrays of the scans that kept points, sorted by stamp.
     """
 
     path: str
@@ -58,6 +58,11 @@ class BagScans:
     def stamps_ns(self) -> np.ndarray:
         """``[S]`` int64 scan stamps (earliest kept point), increasing."""
         return self.index["stamp_ns"]
+
+    @property
+    def empty_before(self) -> np.ndarray | None:
+        """``[S]`` empty messages (dropped on reading) right before each kept scan."""
+        return self.index.get("empty_before")
 
     def load(self, start_ns: int, end_ns: int) -> list[LidarScan]:
         """Scans whose stamp lies in ``[start_ns, end_ns]``, read from the bag, in time order."""
@@ -176,7 +181,11 @@ def open_sequence(
         )
     empty = len(lidar.stats) - index["stamp_ns"].size
     if empty:
-        warnings.append(f"{where_lidar}: {empty} empty scan(s) skipped")
+        warnings.append(
+            f"{where_lidar}: {empty} empty scan(s) skipped (no valid point: all NaN, zero or "
+            f"out of range); up to {MAX_BRIDGED_EMPTY_SCANS} in a row are bridged, longer runs "
+            "are gaps the selection avoids"
+        )
     lo = max(int(imu_samples.stamps_ns[0]), int(index["stamp_ns"][0]))
     hi = min(int(imu_samples.stamps_ns[-1]), int(index["end_ns"][-1]))
     if hi <= lo:
@@ -188,13 +197,20 @@ def open_sequence(
             "sources (PTP/GPS vs system time) or record both in the same bag",
         )
     imu_st = stamp_stats(imu_samples.stamps_ns, None, IMU_GAP_FACTOR, IMU_MIN_GAP_S)
-    lidar_st = stamp_stats(index["stamp_ns"], None, LIDAR_GAP_FACTOR)
-    for label, st in (("IMU", imu_st), ("LiDAR", lidar_st)):
-        if st.gaps_ns:
-            warnings.append(
-                f"{path}: {label} has {len(st.gaps_ns)} gap(s) longer than "
-                f"{st.gap_threshold_s:.3f} s (longest {st.max_gap_s:.3f} s)"
-            )
+    if imu_st.gaps_ns:
+        a, b = max(imu_st.gaps_ns, key=lambda g: g[1] - g[0])
+        warnings.append(
+            f"{path}: IMU has {len(imu_st.gaps_ns)} gap(s) longer than "
+            f"{imu_st.gap_threshold_s:.3f} s (longest {imu_st.max_gap_s:.3f} s, at "
+            f"{(a - lo) / NS_PER_S:.3f} s, stamp {a / NS_PER_S:.3f} s, on {imu_topic})"
+        )
+    lidar_gaps_ns = lidar_gaps(index["stamp_ns"], index["empty_before"], LIDAR_GAP_FACTOR)
+    if lidar_gaps_ns:
+        longest = max((b - a) / NS_PER_S for a, b in lidar_gaps_ns)
+        warnings.append(
+            f"{where_lidar}: LiDAR has {len(lidar_gaps_ns)} gap(s) longer than "
+            f"{LIDAR_GAP_FACTOR:g} scan intervals (longest {longest:.3f} s)"
+        )
     for w in warnings:
         log.warning(w)
     meta = {
@@ -205,7 +221,8 @@ def open_sequence(
         "time_convention": lidar.convention.as_dict(),
         "imu_units": units.as_dict(),
         "imu_gaps_ns": [list(g) for g in imu_st.gaps_ns],
-        "lidar_gaps_ns": [list(g) for g in lidar_st.gaps_ns],
+        "lidar_gaps_ns": [list(g) for g in lidar_gaps_ns],
+        "empty_scans": int(empty),
         "warnings": warnings,
     }
     scans = BagScans(

@@ -1,4 +1,10 @@
-"""Timing statistics of a topic: rate, span, gaps, non-monotonic stamps, header vs record time."""
+"""Timing statistics of a topic: rate, span, gaps, non-monotonic stamps, header vs record time.
+
+:func:`lidar_gaps` finds the holes of a LiDAR stream that matter for calibration: a hole left by
+at most :data:`MAX_BRIDGED_EMPTY_SCANS` consecutive empty scans (no valid point; dropped on
+reading) is bridged, as the IMU carries the odometry over a few scan periods; longer runs of
+empty scans and missing messages are gaps.
+"""
 
 from __future__ import annotations
 
@@ -108,3 +114,35 @@ def stamp_stats(
         record_minus_header_s=rmh,
         zero_stamps=int(np.count_nonzero(h == 0)),
     )
+
+
+#: Consecutive empty scans (dropped on reading) that still do not make a LiDAR gap.
+MAX_BRIDGED_EMPTY_SCANS = 2
+
+
+def lidar_gaps(
+    stamps_ns: np.ndarray, empty_before: np.ndarray | None, gap_factor: float
+) -> list[tuple[int, int]]:
+    """Gaps between kept LiDAR scans that are not bridged over a few empty scans.
+
+    Args:
+        stamps_ns: ``[S]`` increasing stamps of the scans that kept points.
+        empty_before: ``[S]`` empty messages right before each kept scan (``None``: unknown,
+            every hole counts).
+        gap_factor: A hole longer than ``gap_factor`` x the median scan interval is a gap
+            (plus one interval per bridged empty scan).
+
+    Returns:
+        ``[(before_ns, after_ns), ...]`` stamps of the kept scans around each gap.
+    """
+    st = np.asarray(stamps_ns, dtype=np.int64)
+    d = np.diff(st)
+    if d.size == 0:
+        return []
+    med = float(np.median(d))
+    allowed = np.full(d.size, gap_factor * med)
+    if empty_before is not None:
+        n = np.asarray(empty_before, dtype=np.int64)[1:]
+        bridged = (n > 0) & (n <= MAX_BRIDGED_EMPTY_SCANS)
+        allowed[bridged] += n[bridged] * med
+    return [(int(st[i]), int(st[i + 1])) for i in np.flatnonzero(d > allowed)]

@@ -17,7 +17,12 @@ For every window ``[s, s + window_s]`` (stride ``step_s``) of a sequence's LiDAR
 * **Eligibility**: a window is never chosen if it contains a still block (a ``step_s`` block
   with RMS |ω| < 0.05 rad/s and RMS |f − mean f| < 0.15 m/s²; IMU noise and bias of MEMS parts
   stay well below, walking or driving stays well above), an IMU gap (> 5 median intervals and
-  > 20 ms) or a LiDAR gap (> 1.8 median scan intervals).
+  > 20 ms) or a LiDAR gap (> 1.8 median scan intervals; a hole left by up to
+  :data:`~l2calib.io.stamps.MAX_BRIDGED_EMPTY_SCANS` empty scans, dropped on reading, is not a
+  gap: :func:`~l2calib.io.stamps.lidar_gaps`).
+* **Gaps split the data**: a gap-free stretch that holds no whole window (e.g. the 4 s on either
+  side of a 2 s IMU gap with 5 s windows) gets one window of its own, up to ``window_s`` long from
+  its start, if it is at least :data:`MIN_STRETCH_SHARE` of a window long.
 """
 
 from __future__ import annotations
@@ -27,11 +32,14 @@ from dataclasses import dataclass
 import numpy as np
 
 from l2calib.data import NS_PER_S, Sequence
+from l2calib.io.stamps import lidar_gaps
 from l2calib.recipe import SelectionConfig
 
 STILL_GYRO_RAD_S = 0.05
 STILL_ACCEL_M_S2 = 0.15
 IMU_GAP_FACTOR, IMU_MIN_GAP_S, LIDAR_GAP_FACTOR = 5.0, 0.02, 1.8
+#: A gap-free stretch shorter than a window gets a window of its own from this share of one.
+MIN_STRETCH_SHARE = 0.5
 
 
 @dataclass(frozen=True, eq=False)
@@ -50,6 +58,8 @@ class WindowStats:
         eligible: ``[W]`` may be chosen.
         block_start_ns: ``[B]`` starts of the still-detection blocks.
         block_still: ``[B]`` whether each block is still.
+        imu_gaps_ns: ``[(before_ns, after_ns), ...]`` IMU gaps (samples around each).
+        lidar_gaps_ns: ``[(before_ns, after_ns), ...]`` LiDAR gaps (kept scans around each).
     """
 
     sequence: str
@@ -65,6 +75,8 @@ class WindowStats:
     eligible: np.ndarray
     block_start_ns: np.ndarray
     block_still: np.ndarray
+    imu_gaps_ns: tuple[tuple[int, int], ...] = ()
+    lidar_gaps_ns: tuple[tuple[int, int], ...] = ()
 
     def __len__(self) -> int:
         return int(self.start_ns.shape[0])
@@ -122,12 +134,38 @@ def _gap_mask(starts: np.ndarray, ends: np.ndarray, gaps: list[tuple[int, int]])
     return bad
 
 
-def _gaps(stamps: np.ndarray, factor: float, min_s: float) -> list[tuple[int, int]]:
+def find_gaps(stamps: np.ndarray, factor: float, min_s: float) -> list[tuple[int, int]]:
+    """``[(before_ns, after_ns), ...]`` around intervals > ``factor`` x median and > ``min_s``."""
     d = np.diff(stamps)
     if d.size == 0:
         return []
     thr = max(factor * float(np.median(d)), min_s * NS_PER_S)
     return [(int(stamps[i]), int(stamps[i + 1])) for i in np.flatnonzero(d > thr)]
+
+
+def _stretch_windows(
+    starts: np.ndarray, ends: np.ndarray, lo: int, hi: int, win: int, gaps: list
+) -> tuple[np.ndarray, np.ndarray]:
+    """Adds a window to each gap-free stretch of ``[lo, hi]`` that holds no whole window."""
+    merged: list[list[int]] = []
+    for a, b in sorted((max(a, lo), min(b, hi)) for a, b in gaps if a < hi and b > lo):
+        if merged and a <= merged[-1][1]:
+            merged[-1][1] = max(merged[-1][1], b)
+        else:
+            merged.append([a, b])
+    cuts = [lo, *(x for g in merged for x in g), hi]
+    extra_s, extra_e = [], []
+    for a, b in zip(cuts[::2], cuts[1::2], strict=True):
+        inside = (starts >= a) & (ends <= b)
+        if b - a >= MIN_STRETCH_SHARE * win and not inside.any():
+            extra_s.append(a)
+            extra_e.append(min(b, a + win))
+    if not extra_s:
+        return starts, ends
+    starts = np.concatenate([starts, np.array(extra_s, dtype=np.int64)])
+    ends = np.concatenate([ends, np.array(extra_e, dtype=np.int64)])
+    order = np.argsort(starts, kind="stable")
+    return starts[order], ends[order]
 
 
 def window_excitation(seq: Sequence, config: SelectionConfig) -> WindowStats:
@@ -139,6 +177,13 @@ def window_excitation(seq: Sequence, config: SelectionConfig) -> WindowStats:
     step = int(round(config.step_s * NS_PER_S))
     starts = np.arange(lo, hi - win + 1, step, dtype=np.int64) if win > 0 else np.zeros(0, int)
     ends = starts + win
+    imu_gaps = find_gaps(st, IMU_GAP_FACTOR, IMU_MIN_GAP_S)
+    scan_gaps = lidar_gaps(
+        np.asarray(seq.scans.stamps_ns), getattr(seq.scans, "empty_before", None), LIDAR_GAP_FACTOR
+    )
+    gaps = imu_gaps + scan_gaps
+    if win > 0:
+        starts, ends = _stretch_windows(starts, ends, lo, hi, win, gaps)
     q = integrate_gyro(st, w)
     f_world = _rotate(q, f)
     n = len(starts)
@@ -173,11 +218,22 @@ def window_excitation(seq: Sequence, config: SelectionConfig) -> WindowStats:
     for k in range(n):
         inside = (b_starts >= starts[k]) & (b_starts + step <= ends[k])
         share[k] = still[inside].mean() if inside.any() else 0.0
-    gaps = _gaps(st, IMU_GAP_FACTOR, IMU_MIN_GAP_S) + _gaps(
-        np.asarray(seq.scans.stamps_ns), LIDAR_GAP_FACTOR, 0.0
-    )
     gap = _gap_mask(starts, ends, gaps)
     eligible = (share == 0) & ~gap & ((i1 - i0) >= 2)
     return WindowStats(
-        seq.name, starts, ends, gm, am, lam_g, lam_a, score, share, gap, eligible, b_starts, still
+        seq.name,
+        starts,
+        ends,
+        gm,
+        am,
+        lam_g,
+        lam_a,
+        score,
+        share,
+        gap,
+        eligible,
+        b_starts,
+        still,
+        tuple(imu_gaps),
+        tuple(scan_gaps),
     )

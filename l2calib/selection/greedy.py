@@ -23,6 +23,7 @@ import numpy as np
 from l2calib.data import NS_PER_S, Segment, Sequence
 from l2calib.recipe import SelectionConfig
 from l2calib.selection.excitation import WindowStats, window_excitation
+from l2calib.selection.gaps import gap_notes, no_window_reason
 
 EPS = 0.01
 AXES = ("x", "y", "z")
@@ -172,6 +173,7 @@ def select_windows(sequences: Seq[Sequence], config: SelectionConfig | None = No
         notes.append(f"window shortened to the budget ({cfg.budget_s:g} s)")
         cfg = SelectionConfig(**{**cfg.model_dump(), "window_s": cfg.budget_s})
     stats = {s.name: window_excitation(s, cfg) for s in sequences}
+    notes += gap_notes(sequences, stats)
     if not cfg.enabled:
         whole = SelectionConfig(**{**cfg.model_dump(), "window_s": 1e9})
         stats = {s.name: window_excitation(s, whole) for s in sequences}
@@ -192,18 +194,15 @@ def select_windows(sequences: Seq[Sequence], config: SelectionConfig | None = No
         return _finish(chosen, stats, cfg, notes)
     cand = [(n, k) for n, w in stats.items() for k in np.flatnonzero(w.eligible)]
     if not cand:
-        notes.append(
-            "no eligible window: every window is still, contains a gap, or the data "
-            f"is shorter than {cfg.window_s:g} s"
-        )
+        notes.append("no eligible window: " + no_window_reason(sequences, stats, cfg.window_s))
         return _finish([], stats, cfg, notes)
     gms = np.stack([stats[n].gyro_moment[k] for n, k in cand])
     ams = np.stack([stats[n].accel_moment[k] for n, k in cand])
     dur = np.array([(stats[n].end_ns[k] - stats[n].start_ns[k]) / NS_PER_S for n, k in cand])
     starts = np.array([stats[n].start_ns[k] for n, k in cand])
+    ends = np.array([stats[n].end_ns[k] for n, k in cand])
     seq_idx = np.array([list(stats).index(n) for n, _ in cand])
-    win_ns = int(round(cfg.window_s * NS_PER_S))
-    if dur.max() < cfg.window_s:
+    if all(s.end_ns - s.start_ns < cfg.window_s * NS_PER_S for s in sequences):
         notes.append(f"windows shortened to {dur.max():.1f} s (sequences are shorter)")
     scale_g = 1.0 / (cfg.min_gyro_rad_s**2 * cfg.budget_s)
     scale_a = 1.0 / (cfg.min_accel_m_s2**2 * cfg.budget_s)
@@ -236,7 +235,7 @@ def select_windows(sequences: Seq[Sequence], config: SelectionConfig | None = No
         base = float(obj[j])
         info_g, info_a = ig[j], ia[j]
         total += dur[j]
-        available &= ~((seq_idx == seq_idx[j]) & (np.abs(starts - starts[j]) < win_ns))
+        available &= ~((seq_idx == seq_idx[j]) & (starts < ends[j]) & (ends > starts[j]))
     if total < cfg.budget_s - cfg.window_s + 1e-6:
         notes.append(
             f"budget not reached: {total:.1f} s of {cfg.budget_s:.1f} s (not enough "

@@ -75,7 +75,8 @@ def test_select_cli_errors(tmp_path):
     out = cli("select", str(scene.path), "--budget", "10s", "--plot", str(tmp_path / "p.png"))
     assert (
         out.returncode == 1
-        and "error: no window was selected: no eligible window: every window is still" in out.stderr
+        and "error: no window was selected: no eligible window: hesai_ros1: every window is still"
+        in out.stderr
         and "fix: record motion" in out.stderr
     )
 
