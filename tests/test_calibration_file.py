@@ -142,3 +142,4 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     assert written["uncertainty"]["warnings"] and "starts again" in res.output
     assert [a["kept"] for a in written["attempts"]].count(True) == 1
     assert (out / "calibration" / "restart-1" / "checkpoint.pt").is_file()
+    assert written["data"]["segments"] >= 1 and written["data"]["selected_s"] >= 1.5
