@@ -64,3 +64,7 @@ class NotImplementedPluginError(PluginError):
 
 class OutputError(L2CalibError):
     """An output path (``--out``) cannot be created or written."""
+
+
+class NotCalibratedError(DataError):
+    """A calibration result holds no extrinsic to use: its status is ``not-calibrated``."""

@@ -134,16 +134,38 @@ def prepare_data(
     stage: Callable[[str], None] | None = None,
 ) -> PreparedData:
     """Reads (or takes) sequences, selects segments and computes their references."""
+    data = select_data(recipe, bags=bags, sequences=sequences, stage=stage)
+    return add_references(recipe, data, stage=stage)
+
+
+def select_data(
+    recipe: Recipe,
+    bags: Sequence[Path] | None = None,
+    sequences: Sequence[DataSequence] | None = None,
+    stage: Callable[[str], None] | None = None,
+) -> PreparedData:
+    """Reads (or takes) sequences and selects segments, without references yet.
+
+    ``calibrate`` judges the selected data (:func:`l2calib.status.before_training`) before it
+    spends anything on a reference; :func:`add_references` completes the data.
+    """
     say = stage or (lambda _msg: None)
     if sequences is None:
         say("reading recordings")
         sequences = read_sequences(recipe, bags or [])
     say("selecting informative data")
     segments, selection = select_segments(recipe, sequences)
+    return PreparedData(list(sequences), segments, [], selection)
+
+
+def add_references(
+    recipe: Recipe, data: PreparedData, stage: Callable[[str], None] | None = None
+) -> PreparedData:
+    """Computes the references of ``data``'s segments (in place); returns ``data``."""
+    say = stage or (lambda _msg: None)
     say(f"computing the {recipe.reference.name} reference")
-    notes: list[str] = []
-    references = compute_references(recipe, segments, sequences, notes.append)
-    return PreparedData(list(sequences), segments, references, selection, notes)
+    data.references = compute_references(recipe, data.segments, data.sequences, data.notes.append)
+    return data
 
 
 def undetermined_axes(

@@ -5,8 +5,11 @@
 * ``not-calibrated`` — the data could not determine the extrinsic: the resolution probe finds
   the reward flat along at least :data:`MIN_FLAT_AXES` of the six axes, or the selected data is
   shorter than half a selection window (``selection.window_s``), or the selection found every IMU
-  axis too still to excite. ``l2calib calibrate`` then exits with :data:`EXIT_NOT_CALIBRATED`,
-  writes the partial result marked as such and omits the paste-ready FAST-LIO / URDF blocks.
+  axis too still to excite. ``l2calib calibrate`` then exits with :data:`EXIT_NOT_CALIBRATED`
+  and omits the paste-ready FAST-LIO / URDF blocks. The data rules are checked before training
+  (:func:`before_training`): data that breaks them is not trained on, and ``calibration.yaml``
+  holds no extrinsic at all (only the status, the reasons and a summary of the data). A flat
+  probe after training leaves the partial result, marked as such.
 * ``unreliable`` — an extrinsic came out, but a warning makes it untrustworthy (the odometry and
   the reference still disagree after the restarts: :mod:`l2calib.agreement`). The exit status
   stays 0; the paste-ready blocks carry a warning comment.
@@ -104,6 +107,24 @@ def data_shortfalls(
     return out
 
 
+def before_training(data: Any, selection_cfg: Any) -> Status:
+    """The verdict of the selected data alone, before any training.
+
+    ``calibrate`` stops here, without training, when the data is clearly too short or too still
+    (:func:`data_shortfalls`, the rules ``inspect`` warns with).
+
+    Args:
+        data: The selected data (a ``PreparedData``; its references are not needed).
+        selection_cfg: The recipe's ``selection`` section (window length and thresholds).
+
+    Returns:
+        ``not-calibrated`` with what is missing and what to record, or ``calibrated`` (the data
+        may calibrate: training decides).
+    """
+    missing = _data_reasons(data, selection_cfg)
+    return Status(NOT_CALIBRATED, missing) if missing else Status()
+
+
 def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
     """The status of ``result`` computed on ``data`` (a ``PreparedData``).
 
@@ -112,10 +133,7 @@ def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
         data: The prepared data (its segments and, when enabled, its selection).
         selection_cfg: The recipe's ``selection`` section (window length and thresholds).
     """
-    total = float(sum(s.duration_s for s in data.segments))
-    sel = data.selection
-    excitation = None if sel is None else (sel.gyro_rms_rad_s, sel.accel_rms_m_s2)
-    missing = [f"{what}: {fix}" for what, fix in data_shortfalls(total, excitation, selection_cfg)]
+    missing = _data_reasons(data, selection_cfg)
     flat = flat_axes(result.resolution)
     if len(flat) >= MIN_FLAT_AXES:
         missing.append(
@@ -127,6 +145,14 @@ def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
     if result.warnings:
         return Status(UNRELIABLE, list(result.warnings))
     return Status()
+
+
+def _data_reasons(data: Any, selection_cfg: Any) -> list[str]:
+    """``data_shortfalls`` of the selected data, as ``"what: fix"`` lines."""
+    total = float(sum(s.duration_s for s in data.segments))
+    sel = data.selection
+    excitation = None if sel is None else (sel.gyro_rms_rad_s, sel.accel_rms_m_s2)
+    return [f"{what}: {fix}" for what, fix in data_shortfalls(total, excitation, selection_cfg)]
 
 
 def _triple(v: np.ndarray) -> str:

@@ -63,6 +63,12 @@ def sim6(tmp_path_factory) -> dict[str, str]:
     return simulated(tmp_path_factory.mktemp("sim6"), 6.0)
 
 
+@pytest.fixture(scope="module")
+def sim1(tmp_path_factory) -> dict[str, str]:
+    """A 1 s recording: far too short to calibrate."""
+    return simulated(tmp_path_factory.mktemp("sim1"), 1.0)
+
+
 def gt_reference(files: dict[str, str]) -> list[str]:
     return [
         "--set",
@@ -254,9 +260,8 @@ def test_disjoint_streams_say_they_do_not_overlap(sim6, tmp_path):
     assert "fix: both sensors must be stamped on the same clock" in last
 
 
-def test_inspect_warns_a_one_second_recording_is_too_short(tmp_path):
-    files = simulated(tmp_path / "sim1", 1.0)
-    proc = l2calib("inspect", files["bag"], "--recipe", "simulator")
+def test_inspect_warns_a_one_second_recording_is_too_short(sim1):
+    proc = l2calib("inspect", sim1["bag"], "--recipe", "simulator")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     text = " ".join(proc.stdout.split())
     assert (
@@ -361,23 +366,46 @@ def test_simulate_refuses_an_existing_out_before_simulating(sim6):
 
 
 # --------------------------------------------------------------------------- too little data
-@pytest.mark.slow
-def test_one_second_recording_is_not_calibrated(tmp_path):
-    files = simulated(tmp_path / "sim1", 1.0)
+def test_one_second_recording_stops_before_training(sim1, tmp_path):
     out = tmp_path / "out"
-    args = [*gt_reference(files), "--set", "train.max_iterations=2"]
-    proc = l2calib("calibrate", "simulator", "--bag", files["bag"], "--out", out, *FAST, *args)
+    args = [*gt_reference(sim1), "--set", "train.max_iterations=2"]
+    proc = l2calib("calibrate", "simulator", "--bag", sim1["bag"], "--out", out, *FAST, *args)
     assert proc.returncode == 3, proc.stdout + proc.stderr
     assert "Traceback" not in proc.stderr
     text = " ".join(proc.stdout.split())  # rich wraps long lines
+    assert "status: not-calibrated — stopped before training" in text
     assert (
-        "status: not-calibrated" in text and "usable data, far below one selection window" in text
+        "only 0.9 s of usable data, far below one selection window (selection.window_s = 3 s): "
+        "record at least 3 s of motion" in text
     )
+    assert "the selected data is too still" in text and "swing the rig" in text
+    # no reference, no training: no checkpoint, no iteration, no extrinsic on screen or on disk
+    stages = [line for line in proc.stdout.splitlines() if line.startswith("• ")]
+    assert stages[-1] == "• 1 segment(s), 0.9 s of data"  # no reference, odometry or training
+    assert not (out / "checkpoint.pt").exists() and "T_imu_lidar" not in text
     written = (out / "calibration.yaml").read_text()
-    assert "# NOT CALIBRATED" in written
+    assert "# NOT CALIBRATED: calibrate stopped before training" in written
     data = yaml.safe_load(written)
-    assert data["status"] == "not-calibrated" and data["status_reasons"]
-    assert "fast_lio" not in data and "urdf" not in data
+    assert data["status"] == "not-calibrated" and len(data["status_reasons"]) == 2
+    assert data["training"]["iterations"] == 0 and data["data"]["selected_s"] == 0.9
+    assert "T_imu_lidar" not in data and "fast_lio" not in data and "urdf" not in data
+
+
+def test_a_not_calibrated_file_is_refused_by_its_readers(sim1, tmp_path):
+    files, out = sim1, tmp_path / "out"
+    proc = l2calib("calibrate", "simulator", "--bag", files["bag"], "--out", out)
+    assert proc.returncode == 3, proc.stdout + proc.stderr
+    calib = out / "calibration.yaml"
+    line = one_error_line(l2calib("evaluate", "--extrinsic", calib, "--bag", files["bag"]))
+    assert line.startswith(
+        f"error: {calib}: status not-calibrated: calibrate stopped before training and wrote "
+        "no extrinsic; status_reasons[0]: only 0.9 s of usable data"
+    )
+    assert "fix: record the motion its status_reasons ask for" in line
+    line = one_error_line(
+        l2calib("calibrate", "simulator", "--bag", files["bag"], "--out", out, "--resume")
+    )
+    assert f"{out}: nothing to resume: that run stopped before training" in line
 
 
 @pytest.mark.slow

@@ -10,7 +10,7 @@ import torch
 import yaml
 
 from l2calib import geometry as geo
-from l2calib.errors import DataError
+from l2calib.errors import DataError, NotCalibratedError
 from l2calib.outputs.calibration_file import CalibrationResult, read_extrinsic, write_calibration
 from l2calib.sensitivity import AxisResolution
 
@@ -60,6 +60,57 @@ def test_not_calibrated_result_has_no_paste_ready_blocks(tmp_path):
     assert "fast_lio" not in data and "urdf" not in data
 
 
+def _stopped() -> CalibrationResult:
+    return CalibrationResult(
+        None,
+        stop_reason="stopped before training: the data is too short or too still",
+        status="not-calibrated",
+        status_reasons=["only 0.9 s of usable data: record at least 5 s of motion"],
+        extra={"data": {"selected_s": 0.9}},
+    )
+
+
+def test_a_run_stopped_before_training_writes_no_extrinsic(tmp_path):
+    text = write_calibration(tmp_path / "calibration.yaml", _stopped()).read_text()
+    assert "# NOT CALIBRATED: calibrate stopped before training" in text
+    data = yaml.safe_load(text)
+    assert data["status"] == "not-calibrated" and data["data"] == {"selected_s": 0.9}
+    assert data["training"]["iterations"] == 0
+    for key in ("T_imu_lidar", "translation_m", "quaternion_xyzw", "rpy_deg", "T_lidar_imu"):
+        assert key not in data
+    assert "fast_lio" not in data and "urdf" not in data and "uncertainty" not in data
+    with pytest.raises(NotCalibratedError, match="stopped before training"):
+        _stopped().rpy_deg  # noqa: B018  (the property raises)
+
+
+@pytest.mark.parametrize(
+    ("result", "says"),
+    [
+        (_stopped(), "calibrate stopped before training and wrote no extrinsic"),
+        (
+            CalibrationResult(_T(), status="not-calibrated", status_reasons=["flat"]),
+            "its values are a partial result for diagnosis only",
+        ),
+    ],
+    ids=["stopped-before-training", "flat-after-training"],
+)
+def test_reading_the_extrinsic_of_a_not_calibrated_file_is_a_clear_error(tmp_path, result, says):
+    path = write_calibration(tmp_path / "calibration.yaml", result)
+    with pytest.raises(NotCalibratedError) as info:
+        read_extrinsic(path)
+    assert isinstance(info.value, DataError)  # an L2CalibError: one line from the CLI
+    message = str(info.value)
+    assert message.startswith(f"{path}: status not-calibrated: {says}")
+    assert "status_reasons[0]:" in message and " — fix: record the motion" in message
+
+
+def test_reading_a_file_that_is_not_a_mapping_is_a_clear_error(tmp_path):
+    p = tmp_path / "list.yaml"
+    p.write_text("- 1\n- 2\n")
+    with pytest.raises(DataError, match="list.yaml: not a calibration file"):
+        read_extrinsic(p)
+
+
 def test_reading_a_file_without_an_extrinsic_names_the_fix(tmp_path):
     p = tmp_path / "x.yaml"
     p.write_text("foo: 1\n")
@@ -91,3 +142,4 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     assert written["uncertainty"]["warnings"] and "starts again" in res.output
     assert [a["kept"] for a in written["attempts"]].count(True) == 1
     assert (out / "calibration" / "restart-1" / "checkpoint.pt").is_file()
+    assert written["data"]["segments"] >= 1 and written["data"]["selected_s"] >= 1.5

@@ -10,7 +10,7 @@ import numpy as np
 from l2calib.outputs.calibration_file import CalibrationResult
 from l2calib.recipe import SelectionConfig
 from l2calib.sensitivity import AxisResolution
-from l2calib.status import assess, flat_axes
+from l2calib.status import assess, before_training, flat_axes
 
 CFG = SelectionConfig(window_s=5.0, budget_s=10.0)
 
@@ -51,3 +51,25 @@ def test_too_little_or_too_still_data_is_not_calibrated():
 def test_a_reference_disagreement_is_unreliable():
     status = assess(_result(warnings=["disagree by 63 cm"]), _data(10.0), CFG)
     assert status.status == "unreliable" and status.reasons == ["disagree by 63 cm"]
+
+
+def test_before_training_stops_on_data_too_short_or_too_still():
+    short = before_training(_data(0.9), CFG)
+    assert short.status == "not-calibrated"
+    assert short.reasons[0].startswith("only 0.9 s of usable data, far below one selection window")
+    assert "record at least 5 s of motion" in short.reasons[0]
+    still = before_training(_data(10.0, gyro=(0.01,) * 3, accel=(0.02,) * 3), CFG)
+    assert still.status == "not-calibrated" and "swing the rig" in still.reasons[0]
+
+
+def test_before_training_lets_enough_data_train():
+    ok = before_training(_data(10.0), CFG)
+    assert ok.status == "calibrated" and ok.reasons == []
+    # with the selection disabled only the length is known, and judged
+    no_selection = SimpleNamespace(segments=[SimpleNamespace(duration_s=0.9)], selection=None)
+    assert before_training(no_selection, CFG).status == "not-calibrated"
+
+
+def test_before_training_gives_the_same_reasons_as_after():
+    data = _data(0.9, gyro=(0.01,) * 3, accel=(0.02,) * 3)
+    assert before_training(data, CFG).reasons == assess(_result(), data, CFG).reasons

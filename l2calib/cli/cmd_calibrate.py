@@ -9,6 +9,8 @@ import typer
 from l2calib.status import EXIT_NOT_CALIBRATED, NOT_CALIBRATED, UNRELIABLE
 
 _SET_HELP = "Override a recipe field, e.g. --set train.seed=3 (repeatable)."
+#: ``training.stop_reason`` of a run that stopped before training.
+STOPPED_BEFORE_TRAINING = "stopped before training: the data is too short or too still"
 
 
 def run_calibration(
@@ -23,16 +25,22 @@ def run_calibration(
 ):
     """Runs the whole calibration with a live display and writes the output directory.
 
+    Data clearly too short or too still to calibrate (:func:`l2calib.status.before_training`)
+    stops the run before the reference and the training: ``calibration.yaml`` then holds the
+    ``not-calibrated`` status, the reasons and a data summary, and no extrinsic.
+
     Returns:
-        The :class:`~l2calib.outputs.calibration_file.CalibrationResult`.
+        The :class:`~l2calib.outputs.calibration_file.CalibrationResult` (its ``T_imu_lidar``
+        is ``None`` when the run stopped before training).
     """
     import numpy as np
     from rich.console import Console
 
     from l2calib.cli.live import CalibrationDisplay
+    from l2calib.outputs.data_summary import data_summary
     from l2calib.outputs.writer import prepare_out_dir, write_outputs
-    from l2calib.pipeline import prepare_data, train_policy
-    from l2calib.status import assess
+    from l2calib.pipeline import add_references, select_data, train_policy
+    from l2calib.status import assess, before_training
 
     console = console or Console()
     out = prepare_out_dir(out, resume, force)
@@ -44,18 +52,20 @@ def run_calibration(
         ),
     )
     with CalibrationDisplay(console, iterations) as display:
-        data = prepare_data(recipe, bags=bags, sequences=sequences, stage=display.stage)
-        for seq in data.sequences:
-            for warning in seq.meta.get("warnings", []):
-                display.stage(f"[yellow]warning[/]: {warning}")
-        notes = [*(data.selection.notes if data.selection is not None else []), *data.notes]
-        for note in notes:
-            display.stage(f"[yellow]note[/]: {note}")
-        total = sum(s.duration_s for s in data.segments)
-        display.stage(f"{len(data.segments)} segment(s), {total:.1f} s of data")
-        result, outcome = train_policy(
-            recipe, data, out, resume=resume, progress=display.update, stage=display.stage
-        )
+        data = select_data(recipe, bags=bags, sequences=sequences, stage=display.stage)
+        _show_data(display, data)
+        verdict = before_training(data, recipe.selection)
+        if verdict.status == NOT_CALIBRATED:
+            display.skip_training()
+        else:
+            add_references(recipe, data, stage=display.stage)
+            for note in data.notes:
+                display.stage(f"[yellow]note[/]: {note}")
+            result, outcome = train_policy(
+                recipe, data, out, resume=resume, progress=display.update, stage=display.stage
+            )
+    if verdict.status == NOT_CALIBRATED:
+        return _stop_before_training(console, out, recipe, data, verdict)
     before = None
     prior = recipe.policy.prior
     if prior is not None:
@@ -67,6 +77,7 @@ def run_calibration(
         before = geo.make_transform(R, torch.tensor(prior.translation_m)).numpy()
     verdict = assess(result, data, recipe.selection)
     result.status, result.status_reasons = verdict.status, verdict.reasons
+    result.extra["data"] = data_summary(data, recipe.selection)
     console.print("[cyan]•[/] writing the report")
     paths = write_outputs(out, recipe, result, outcome.history, data, truth=truth, before=before)
     print_result(console, result, truth=None if truth is None else np.asarray(truth))
@@ -75,9 +86,49 @@ def run_calibration(
     return result
 
 
+def _show_data(display, data) -> None:
+    """Prints the reading warnings, the selection's notes and how much data was selected."""
+    for seq in data.sequences:
+        for warning in seq.meta.get("warnings", []):
+            display.stage(f"[yellow]warning[/]: {warning}")
+    for note in data.selection.notes if data.selection is not None else []:
+        display.stage(f"[yellow]note[/]: {note}")
+    total = sum(s.duration_s for s in data.segments)
+    display.stage(f"{len(data.segments)} segment(s), {total:.1f} s of data")
+
+
+def _stop_before_training(console, out: Path, recipe, data, verdict):
+    """Writes and prints the ``not-calibrated`` outcome of data too poor to train on.
+
+    Returns:
+        The :class:`~l2calib.outputs.calibration_file.CalibrationResult`, without an extrinsic.
+    """
+    from l2calib.outputs.calibration_file import CalibrationResult
+    from l2calib.outputs.data_summary import data_summary
+    from l2calib.outputs.writer import write_stopped_outputs
+
+    result = CalibrationResult(
+        None,
+        stop_reason=STOPPED_BEFORE_TRAINING,
+        status=verdict.status,
+        status_reasons=verdict.reasons,
+        extra={"data": data_summary(data, recipe.selection)},
+    )
+    paths = write_stopped_outputs(out, recipe, result, data)
+    console.print(f"results in [bold]{out}[/]: {', '.join(p.name for p in paths.values())}")
+    print_status(console, result)
+    return result
+
+
 def print_status(console, result) -> None:
     """Prints the run's status (``calibration.yaml`` → ``status``) and what is missing."""
-    if result.status == NOT_CALIBRATED:
+    if result.stopped_before_training:
+        console.print(
+            "[bold red]status: not-calibrated[/] — stopped before training: the data is too "
+            "short or too still to calibrate; calibration.yaml holds the reasons and a summary "
+            "of the data, and no extrinsic. What is missing:"
+        )
+    elif result.status == NOT_CALIBRATED:
         console.print(
             "[bold red]status: not-calibrated[/] — the data could not determine the extrinsic; "
             "calibration.yaml holds the partial result, marked as such, without paste-ready "
@@ -174,8 +225,9 @@ def calibrate(
 
     Exit status: 0 when calibration.yaml has status calibrated or unreliable (then its
     paste-ready blocks carry a warning); 3 when the data could not calibrate (status
-    not-calibrated: partial result, no paste-ready blocks); 1 on an error; 130 / 143 when
-    interrupted by Ctrl-C / SIGTERM (resume with --resume).
+    not-calibrated, no paste-ready blocks: data too short or too still stops before training
+    and writes no extrinsic; after training, a partial result marked as such); 1 on an error;
+    130 / 143 when interrupted by Ctrl-C / SIGTERM (resume with --resume).
     """
     import sys
 

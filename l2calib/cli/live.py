@@ -40,6 +40,10 @@ class CalibrationDisplay:
         """Prints a pipeline stage line above the live area."""
         self.console.print(f"[cyan]•[/] {message}")
 
+    def skip_training(self) -> None:
+        """Hides the training bar: the run stops before training."""
+        self.progress.update(self.task, visible=False)
+
     def update(self, record: Any) -> None:
         """Refreshes with one :class:`~l2calib.train.ppo.IterationRecord`."""
         if not self.console.is_terminal:  # a log file or CI: a plain line every 10 iterations

@@ -4,6 +4,13 @@ Direction: ``T_imu_lidar`` maps points from the LiDAR frame into the IMU frame
 (``p_imu = R p_lidar + t``); it is also the pose of the LiDAR in the IMU frame. FAST-LIO's
 ``extrinsic_T``/``extrinsic_R`` and a URDF joint from the IMU link (parent) to the LiDAR link
 (child) both take exactly this transform. Its inverse is written too, labelled ``T_lidar_imu``.
+
+``status`` (:mod:`l2calib.status`) says whether to use it. A ``not-calibrated`` file holds either
+a partial result for diagnosis (the probe after training found most axes flat) or, when
+``calibrate`` stopped before training because the data is too short or too still, no extrinsic
+at all: no ``T_imu_lidar`` and no other form of it, only ``status_reasons`` and a ``data``
+summary. The readers (:mod:`l2calib.outputs.calibration_read`, re-exported here) refuse both
+with :class:`~l2calib.errors.NotCalibratedError`.
 """
 
 from __future__ import annotations
@@ -17,7 +24,8 @@ import torch
 import yaml
 
 from l2calib import geometry as geo
-from l2calib.errors import DataError
+from l2calib.errors import NotCalibratedError
+from l2calib.outputs.calibration_read import read_extrinsic, read_status  # noqa: F401 (re-export)
 from l2calib.status import NOT_CALIBRATED, UNRELIABLE
 
 HEADER = (
@@ -30,9 +38,13 @@ HEADER = (
 
 @dataclass
 class CalibrationResult:
-    """The calibrated extrinsic with its uncertainty and provenance."""
+    """The calibrated extrinsic with its uncertainty and provenance.
 
-    T_imu_lidar: np.ndarray
+    ``T_imu_lidar`` is ``None`` when ``calibrate`` stopped before training (status
+    ``not-calibrated``): then there is no extrinsic in any form.
+    """
+
+    T_imu_lidar: np.ndarray | None
     time_offset_s: float | None = None
     rotation_sigma_deg: list[float] | None = None
     translation_sigma_m: list[float] | None = None
@@ -53,19 +65,52 @@ class CalibrationResult:
     status_reasons: list[str] = field(default_factory=list)
 
     @property
+    def stopped_before_training(self) -> bool:
+        """True when no training ran, so there is no extrinsic (the data was too poor)."""
+        return self.T_imu_lidar is None
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``T_imu_lidar`` as a float64 array.
+
+        Raises:
+            NotCalibratedError: if there is none (``calibrate`` stopped before training).
+        """
+        if self.T_imu_lidar is None:
+            raise NotCalibratedError(
+                f"status {self.status}: calibrate stopped before training, so there is no "
+                "extrinsic (status_reasons says what the data lacks)",
+                fix="record the motion status_reasons asks for and calibrate again",
+            )
+        return np.asarray(self.T_imu_lidar, dtype=np.float64)
+
+    @property
     def rpy_deg(self) -> np.ndarray:
         """Roll, pitch, yaw (deg) of ``R_imu_lidar``."""
-        R = torch.from_numpy(np.asarray(self.T_imu_lidar)[:3, :3])
+        R = torch.from_numpy(self.matrix[:3, :3])
         return torch.rad2deg(geo.matrix_to_euler_rpy(R)).numpy()
 
     @property
     def quat_xyzw(self) -> np.ndarray:
         """Unit quaternion (xyzw, w >= 0) of ``R_imu_lidar``."""
-        return geo.matrix_to_quat(torch.from_numpy(np.asarray(self.T_imu_lidar)[:3, :3])).numpy()
+        return geo.matrix_to_quat(torch.from_numpy(self.matrix[:3, :3])).numpy()
 
     def to_dict(self) -> dict[str, Any]:
         """The YAML content (plain Python types)."""
-        T = np.asarray(self.T_imu_lidar, dtype=np.float64)
+        head: dict[str, Any] = {
+            "status": self.status,
+            **({"status_reasons": list(self.status_reasons)} if self.status_reasons else {}),
+        }
+        training = {
+            "final_reward": None if self.final_reward is None else round(self.final_reward, 6),
+            "evaluations": int(self.evaluations),
+            "iterations": int(self.iterations),
+            "wall_time_s": round(float(self.wall_time_s), 1),
+            "stop_reason": self.stop_reason,
+        }
+        if self.stopped_before_training:  # no extrinsic in any form, nothing to paste
+            return {**head, "training": training, **self.extra}
+        T = self.matrix
         t = T[:3, 3]
         rpy = self.rpy_deg
         inv = geo.transform_inverse(torch.from_numpy(T)).numpy()
@@ -74,8 +119,7 @@ class CalibrationResult:
             return [round(float(v), n) for v in np.asarray(x).reshape(-1)]
 
         out: dict[str, Any] = {
-            "status": self.status,
-            **({"status_reasons": list(self.status_reasons)} if self.status_reasons else {}),
+            **head,
             "T_imu_lidar": [r(row, 9) for row in T],
             "translation_m": r(t),
             "quaternion_xyzw": r(self.quat_xyzw, 9),
@@ -98,13 +142,7 @@ class CalibrationResult:
                 "reference_agreement": self.reference_agreement,
                 "warnings": list(self.warnings),
             },
-            "training": {
-                "final_reward": None if self.final_reward is None else round(self.final_reward, 6),
-                "evaluations": int(self.evaluations),
-                "iterations": int(self.iterations),
-                "wall_time_s": round(float(self.wall_time_s), 1),
-                "stop_reason": self.stop_reason,
-            },
+            "training": training,
         }
         if self.status != NOT_CALIBRATED:  # nothing to paste when the data calibrated nothing
             note = "; UNRELIABLE: read status_reasons first" if self.status == UNRELIABLE else ""
@@ -134,6 +172,11 @@ NOT_CALIBRATED_HEADER = (
     "# missing). The values below are a partial result for diagnosis only: do not use them.\n"
     "# No FAST-LIO / URDF blocks are written.\n"
 )
+STOPPED_HEADER = (
+    "# NOT CALIBRATED: calibrate stopped before training, the data being too short or too still\n"
+    "# (status_reasons says what is missing and how much motion to record; data summarises what\n"
+    "# was found). No extrinsic is written: no T_imu_lidar, no FAST-LIO / URDF blocks.\n"
+)
 UNRELIABLE_COMMENT = (
     "# WARNING: status unreliable (see status_reasons): check this extrinsic before pasting it\n"
 )
@@ -156,7 +199,9 @@ def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
     path = Path(path)
     body = yaml.dump(result.to_dict(), Dumper=_FlowRowsDumper, sort_keys=False, width=120)
     header = HEADER
-    if result.status == NOT_CALIBRATED:
+    if result.stopped_before_training:  # the conventions of T_imu_lidar do not apply
+        header = HEADER.splitlines(keepends=True)[0] + STOPPED_HEADER
+    elif result.status == NOT_CALIBRATED:
         header += NOT_CALIBRATED_HEADER
     elif result.status == UNRELIABLE:
         lines = body.splitlines(keepends=True)
@@ -166,39 +211,3 @@ def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
         )
     path.write_text(header + body)
     return path
-
-
-def read_extrinsic(path: str | Path) -> tuple[np.ndarray, float | None]:
-    """``T_imu_lidar`` (and time offset) from a calibration.yaml or an ``extrinsic_gt.yaml``.
-
-    Accepts a 4×4 ``T_imu_lidar``, or ``translation_m`` with ``quaternion_xyzw`` or ``rpy_deg``.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise DataError(f"{path}: no such file", fix="give the calibration.yaml to evaluate")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as exc:
-        raise DataError(f"{path}: not valid YAML ({exc})") from None
-    offset = data.get("time_offset_s")
-    if "T_imu_lidar" in data:
-        T = np.asarray(data["T_imu_lidar"], dtype=np.float64)
-        if T.shape != (4, 4):
-            raise DataError(f"{path}: T_imu_lidar has shape {T.shape}, expected 4x4")
-    elif "translation_m" in data and ("quaternion_xyzw" in data or "rpy_deg" in data):
-        t = torch.tensor(data["translation_m"], dtype=torch.float64)
-        if "quaternion_xyzw" in data:
-            R = geo.quat_to_matrix(torch.tensor(data["quaternion_xyzw"], dtype=torch.float64))
-        else:
-            rpy = torch.deg2rad(torch.tensor(data["rpy_deg"], dtype=torch.float64))
-            R = geo.euler_rpy_to_matrix(rpy)
-        T = geo.make_transform(R, t).numpy()
-    else:
-        raise DataError(
-            f"{path}: no extrinsic found",
-            fix="give T_imu_lidar (4x4), or translation_m with quaternion_xyzw or rpy_deg",
-        )
-    R = T[:3, :3]
-    if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
-        raise DataError(f"{path}: the rotation of T_imu_lidar is not a proper rotation")
-    return T, (float(offset) if offset is not None else None)

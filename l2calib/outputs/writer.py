@@ -35,6 +35,7 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
     out = check_writable(out, "--out")
     if resume:
         if not (out / "checkpoint.pt").is_file():
+            _refuse_to_resume_a_stopped_run(out)
             raise ConfigError(
                 f"{out}: nothing to resume (no checkpoint.pt)",
                 fix="run without --resume, or point --out at the killed run's directory",
@@ -63,6 +64,53 @@ def prepare_out_dir(out: Path, resume: bool, force: bool) -> Path:
             fix="pass a --out in a place you can write to",
         ) from None
     return out
+
+
+def _refuse_to_resume_a_stopped_run(out: Path) -> None:
+    """A clear error for ``--resume`` in a run that stopped before training (nothing to resume).
+
+    Raises:
+        ConfigError: if ``out/calibration.yaml`` says ``not-calibrated`` with no checkpoint.
+    """
+    from l2calib.outputs.calibration_read import read_status
+    from l2calib.status import NOT_CALIBRATED
+
+    path = out / "calibration.yaml"
+    if not path.is_file() or read_status(path) != NOT_CALIBRATED:
+        return
+    raise ConfigError(
+        f"{out}: nothing to resume: that run stopped before training ({path}: status "
+        f"{NOT_CALIBRATED}, the data being too short or too still) and a run on the same data "
+        "stops again",
+        fix="record the motion its status_reasons ask for and calibrate the new bag into a new "
+        "--out (or --force to move this one aside)",
+    )
+
+
+def write_stopped_outputs(
+    out: Path, recipe: Recipe, result: CalibrationResult, data
+) -> dict[str, Path]:
+    """Writes the outputs of a run that stopped before training.
+
+    These are ``calibration.yaml`` (status, reasons, data summary, no extrinsic),
+    ``recipe.yaml``, and the selection files when the selection ran.
+    """
+    out = Path(out)
+    paths = {"calibration": write_calibration(out / "calibration.yaml", result)}
+    (out / "recipe.yaml").write_text(dump_recipe(recipe))
+    paths["recipe"] = out / "recipe.yaml"
+    if data.selection is not None:
+        paths.update(_write_selection(out, data.selection))
+    return paths
+
+
+def _write_selection(out: Path, selection) -> dict[str, Path]:
+    """selection.png and selection.json."""
+    from l2calib.selection.plot import plot_selection
+
+    path = out / "selection.json"
+    path.write_text(json.dumps(selection.as_dict(), indent=1))
+    return {"selection_plot": plot_selection(selection, out / "selection.png"), "selection": path}
 
 
 def write_metrics_csv(path: Path, history: list[Any]) -> Path:
@@ -122,10 +170,7 @@ def write_outputs(
     paths["report"] = plot_report(out / "report.png", history, result, trajectories, truth)
     images.append("report.png")
     if data.selection is not None:
-        from l2calib.selection.plot import plot_selection
-
-        paths["selection_plot"] = plot_selection(data.selection, out / "selection.png")
-        (out / "selection.json").write_text(json.dumps(data.selection.as_dict(), indent=1))
+        paths.update(_write_selection(out, data.selection))
         images.append("selection.png")
     paths["html"] = write_html(out / "report.html", result, images)
     return paths
