@@ -45,6 +45,20 @@ class PreparedData:
         """Names and spans of the segments (part of the resume fingerprint)."""
         return [f"{s.name}:{s.start_ns}-{s.end_ns}:{len(s.measurements)}" for s in self.segments]
 
+    @property
+    def time_offset_hint_s(self) -> float | None:
+        """Median LiDAR–IMU offset (s) the references measured, or ``None`` (see interfaces)."""
+        hints = [r.time_offset_hint_s for r in self.references if r.time_offset_hint_s is not None]
+        return float(np.median(hints)) if hints else None
+
+
+def time_offset_bound_s(recipe: Recipe) -> float | None:
+    """The policy's ``time_offset_bound_s`` (s) with its plugin default; ``None``: unbounded."""
+    from l2calib.plugins import get_plugin
+
+    spec = get_plugin("l2calib.policies", recipe.policy.name)
+    return getattr(spec.config.model_validate(recipe.policy.options), "time_offset_bound_s", None)
+
 
 def read_sequences(recipe: Recipe, bags: Sequence[Path], progress: bool = False):
     """Opens the bags as sequences with the recipe's topics and conventions."""
@@ -104,7 +118,12 @@ def compute_references(
 
     def compute(choice: PluginChoice) -> list[ReferenceTrajectory]:
         source = get_plugin("l2calib.references", choice.name).build(
-            choice.options, data=recipe.data, sequences=sequences, progress=progress
+            choice.options,
+            data=recipe.data,
+            sequences=sequences,
+            progress=progress,
+            estimate_time_offset=recipe.train.estimate_time_offset,
+            time_offset_bound_s=time_offset_bound_s(recipe),
         )
         return source.compute(list(segments))
 
@@ -143,7 +162,14 @@ def prepare_data(
     say(f"computing the {recipe.reference.name} reference")
     notes: list[str] = []
     references = compute_references(recipe, segments, sequences, notes.append)
-    return PreparedData(list(sequences), segments, references, selection, notes)
+    data = PreparedData(list(sequences), segments, references, selection, notes)
+    if data.time_offset_hint_s is not None:
+        notes.append(
+            f"the {recipe.reference.name} reference's clock check measured a LiDAR–IMU time "
+            f"offset of {1000 * data.time_offset_hint_s:+.1f} ms (t_imu = t_lidar + offset): "
+            "the estimation starts from it"
+        )
+    return data
 
 
 def undetermined_axes(
@@ -324,8 +350,13 @@ def _attempt(
     torch.manual_seed(seed)
     np.random.seed(seed)
     action_dim = 8 if cfg.estimate_time_offset else 7
+    start = data.time_offset_hint_s if cfg.estimate_time_offset else None
     policy = get_plugin("l2calib.policies", recipe.policy.name).build(
-        recipe.policy.options, action_dim=action_dim, prior=recipe.policy.prior, seed=seed
+        recipe.policy.options,
+        action_dim=action_dim,
+        prior=recipe.policy.prior,
+        seed=seed,
+        **({} if start is None else {"init_time_offset_s": start}),
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)

@@ -200,6 +200,8 @@ class CalibrationPolicy(nn.Module):
         prior: Initial guess of ``T_imu_lidar`` with σ; ``None`` = no idea (uniform rotation,
             zero translation with ``options.init_translation_sigma_m``).
         seed: Seeds the actor's own sampling generator (independent of the global RNG).
+        init_time_offset_s: Starting mean of the time offset (s, ``t_imu = t_lidar + offset``;
+            e.g. the reference's clock check), with ``action_dim`` 8.
 
     Attributes:
         actor: ``ProbabilisticActor`` reading ``"observation"``, writing ``"action"`` and
@@ -214,6 +216,7 @@ class CalibrationPolicy(nn.Module):
         action_dim: int = 7,
         prior: ExtrinsicPrior | None = None,
         seed: int = 0,
+        init_time_offset_s: float = 0.0,
     ) -> None:
         super().__init__()
         if action_dim not in (7, 8):
@@ -225,7 +228,7 @@ class CalibrationPolicy(nn.Module):
             raise ConfigError(f"unknown policy kind {kind!r}", fix="use bingham or gaussian")
         self.kind, self.options, self.action_dim = kind, options, action_dim
         self.time_offset = action_dim == 8
-        self.params_net = self._make_params(kind, options, prior)
+        self.params_net = self._make_params(kind, options, prior, init_time_offset_s)
         keys = [*_KEYS[kind], "translation_loc", "translation_scale"]
         module = TensorDictModule(self.params_net, in_keys=[OBSERVATION_KEY], out_keys=keys)
         self.actor = ProbabilisticActor(
@@ -257,7 +260,9 @@ class CalibrationPolicy(nn.Module):
         return {"rotation_mean": rot, "translation_mean": trans, "other": other}
 
     # ------------------------------------------------------------------ construction
-    def _make_params(self, kind: str, o: Any, prior: ExtrinsicPrior | None) -> nn.Module:
+    def _make_params(
+        self, kind: str, o: Any, prior: ExtrinsicPrior | None, offset0_s: float = 0.0
+    ) -> nn.Module:
         k = self.action_dim - 4
         loc0 = torch.zeros(k, dtype=F64)
         sigma0 = torch.full((k,), o.init_translation_sigma_m, dtype=F64)
@@ -275,6 +280,7 @@ class CalibrationPolicy(nn.Module):
         bound = torch.full((k,), o.translation_bound_m or inf, dtype=F64)
         if k == 4:
             sigma0[3], sigma_min[3] = o.init_time_offset_sigma_s, o.min_time_offset_sigma_s
+            loc0[3] = offset0_s
             bound[3] = o.time_offset_bound_s or inf
         trans = TranslationParams(loc0, sigma0, sigma_min, bound)
 
