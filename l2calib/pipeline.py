@@ -343,6 +343,7 @@ def _attempt(
     from l2calib import sensitivity
     from l2calib.plugins import get_plugin
     from l2calib.refine import refine
+    from l2calib.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
     from l2calib.train.ppo import PpoTrainer
 
@@ -392,6 +393,10 @@ def _attempt(
         "translation_m": finite_or_none(score.last.mean_e_t[0], 5),
         "rotation_deg": finite_or_none(torch.rad2deg(score.last.mean_e_r[0]), 4),
     }
+    offset_res = None
+    if offset is not None:
+        say("probing the reward along the time offset (its resolution)")
+        offset_res = probe_time_offset(env, T_mode, offset)
     unc = policy.uncertainty()
     sources = sorted({r.source for r in data.references})
     return CalibrationResult(
@@ -403,12 +408,16 @@ def _attempt(
         final_reward=resolution.reward,
         evaluations=outcome.evaluations
         + candidates.shape[0]
-        + (refined.evaluations if refined else 0),
+        + (refined.evaluations if refined else 0)
+        + (probe_evaluations() if offset_res else 0),
         iterations=len(outcome.history),
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
         resolution=resolution,
-        undetermined=undetermined_axes(resolution, data.selection),
+        undetermined=undetermined_axes(resolution, data.selection)
+        + (offset_res.undetermined() if offset_res else []),
+        time_offset_resolution=offset_res,
+        time_offset_start_s=(start or 0.0) if offset is not None else None,
         reference_agreement=agreement,
         warnings=disagreement_warnings(agreement, sources),
         extra={
