@@ -29,12 +29,16 @@ class ReferenceTrajectory:
         constrains: ``"pose"`` if orientations are meaningful, ``"position"`` if only positions
             are (e.g. RTK): the reward then drops its rotation term.
         source: Name of the reference plugin that produced it.
+        time_offset_hint_s: A LiDAR–IMU time offset (s, ``t_imu = t_lidar + offset``) the source
+            measured on this segment (e.g. gt-file's clock check), used as the starting value
+            when the offset is estimated; ``None``: nothing measured.
     """
 
     segment: str
     trajectory: Trajectory
     constrains: Literal["pose", "position"] = "pose"
     source: str = ""
+    time_offset_hint_s: float | None = None
 
 
 class ReferenceSource(ABC):

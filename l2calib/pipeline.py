@@ -45,6 +45,20 @@ class PreparedData:
         """Names and spans of the segments (part of the resume fingerprint)."""
         return [f"{s.name}:{s.start_ns}-{s.end_ns}:{len(s.measurements)}" for s in self.segments]
 
+    @property
+    def time_offset_hint_s(self) -> float | None:
+        """Median LiDAR–IMU offset (s) the references measured, or ``None`` (see interfaces)."""
+        hints = [r.time_offset_hint_s for r in self.references if r.time_offset_hint_s is not None]
+        return float(np.median(hints)) if hints else None
+
+
+def time_offset_bound_s(recipe: Recipe) -> float | None:
+    """The policy's ``time_offset_bound_s`` (s) with its plugin default; ``None``: unbounded."""
+    from l2calib.plugins import get_plugin
+
+    spec = get_plugin("l2calib.policies", recipe.policy.name)
+    return getattr(spec.config.model_validate(recipe.policy.options), "time_offset_bound_s", None)
+
 
 def read_sequences(recipe: Recipe, bags: Sequence[Path], progress: bool = False):
     """Opens the bags as sequences with the recipe's topics and conventions."""
@@ -104,7 +118,12 @@ def compute_references(
 
     def compute(choice: PluginChoice) -> list[ReferenceTrajectory]:
         source = get_plugin("l2calib.references", choice.name).build(
-            choice.options, data=recipe.data, sequences=sequences, progress=progress
+            choice.options,
+            data=recipe.data,
+            sequences=sequences,
+            progress=progress,
+            estimate_time_offset=recipe.train.estimate_time_offset,
+            time_offset_bound_s=time_offset_bound_s(recipe),
         )
         return source.compute(list(segments))
 
@@ -165,6 +184,12 @@ def add_references(
     say = stage or (lambda _msg: None)
     say(f"computing the {recipe.reference.name} reference")
     data.references = compute_references(recipe, data.segments, data.sequences, data.notes.append)
+    if data.time_offset_hint_s is not None:
+        data.notes.append(
+            f"the {recipe.reference.name} reference's clock check measured a LiDAR–IMU time "
+            f"offset of {1000 * data.time_offset_hint_s:+.1f} ms (t_imu = t_lidar + offset): "
+            "the estimation starts from it"
+        )
     return data
 
 
@@ -339,6 +364,7 @@ def _attempt(
     from l2calib import sensitivity
     from l2calib.plugins import get_plugin
     from l2calib.refine import refine
+    from l2calib.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
     from l2calib.train.ppo import PpoTrainer
 
@@ -346,8 +372,13 @@ def _attempt(
     torch.manual_seed(seed)
     np.random.seed(seed)
     action_dim = 8 if cfg.estimate_time_offset else 7
+    start = data.time_offset_hint_s if cfg.estimate_time_offset else None
     policy = get_plugin("l2calib.policies", recipe.policy.name).build(
-        recipe.policy.options, action_dim=action_dim, prior=recipe.policy.prior, seed=seed
+        recipe.policy.options,
+        action_dim=action_dim,
+        prior=recipe.policy.prior,
+        seed=seed,
+        **({} if start is None else {"init_time_offset_s": start}),
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)
@@ -383,6 +414,10 @@ def _attempt(
         "translation_m": finite_or_none(score.last.mean_e_t[0], 5),
         "rotation_deg": finite_or_none(torch.rad2deg(score.last.mean_e_r[0]), 4),
     }
+    offset_res = None
+    if offset is not None:
+        say("probing the reward along the time offset (its resolution)")
+        offset_res = probe_time_offset(env, T_mode, offset)
     unc = policy.uncertainty()
     sources = sorted({r.source for r in data.references})
     return CalibrationResult(
@@ -394,12 +429,16 @@ def _attempt(
         final_reward=resolution.reward,
         evaluations=outcome.evaluations
         + candidates.shape[0]
-        + (refined.evaluations if refined else 0),
+        + (refined.evaluations if refined else 0)
+        + (probe_evaluations() if offset_res else 0),
         iterations=len(outcome.history),
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
         resolution=resolution,
-        undetermined=undetermined_axes(resolution, data.selection),
+        undetermined=undetermined_axes(resolution, data.selection)
+        + (offset_res.undetermined() if offset_res else []),
+        time_offset_resolution=offset_res,
+        time_offset_start_s=(start or 0.0) if offset is not None else None,
         reference_agreement=agreement,
         warnings=disagreement_warnings(agreement, sources),
         extra={

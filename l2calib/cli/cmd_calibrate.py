@@ -192,6 +192,13 @@ def print_result(console, result, truth=None) -> None:
             "(per-axis rotation error: Euler angles of R_gtᵀ R_est)"
         )
     console.print(table)
+    if result.time_offset_s is not None:
+        res = result.time_offset_resolution
+        how = "" if res is None else f", resolution {_ms(res.resolution_s)}"
+        console.print(
+            f"time offset {1000 * result.time_offset_s:+.2f} ms (t_imu = t_lidar + offset"
+            f"{how}); FAST-LIO: common/time_offset_lidar_to_imu: {result.time_offset_s:.6f}"
+        )
     console.print(
         f"final reward {result.final_reward:.4f}, {result.evaluations} odometry evaluations, "
         f"{result.iterations} iterations, {result.wall_time_s:.0f} s ({result.stop_reason})"
@@ -211,6 +218,12 @@ def print_result(console, result, truth=None) -> None:
         )
     for w in result.warnings:
         console.print(f"[bold yellow]warning[/]: {w}")
+
+
+def _ms(value_s: float) -> str:
+    import numpy as np
+
+    return "flat (undetermined)" if not np.isfinite(value_s) else f"{1000 * value_s:.1f} ms"
 
 
 def calibrate(

@@ -11,6 +11,13 @@ a partial result for diagnosis (the probe after training found most axes flat) o
 at all: no ``T_imu_lidar`` and no other form of it, only ``status_reasons`` and a ``data``
 summary. The readers (:mod:`l2calib.outputs.calibration_read`, re-exported here) refuse both
 with :class:`~l2calib.errors.NotCalibratedError`.
+
+Time offset (when estimated): ``t_imu = t_lidar + time_offset_s`` — the IMU stamps an instant
+``time_offset_s`` later than the LiDAR does. FAST-LIO's ``common/time_offset_lidar_to_imu`` has
+the same sign (hku-mars/FAST_LIO ``src/laserMapping.cpp``, ``imu_cbk``: every IMU stamp becomes
+``stamp - time_offset_lidar_to_imu``), and LI-Init's "Time Lag IMU to LiDAR (second)" is the same
+quantity (hku-mars/LiDAR_IMU_Init ``src/laserMapping.cpp``, ``imu_cbk``: ``stamp -
+time_lag_IMU_wtr_lidar``).
 """
 
 from __future__ import annotations
@@ -34,6 +41,13 @@ HEADER = (
     "# i.e. it is the pose of the LiDAR in the IMU frame. rpy_deg: roll, pitch, yaw with\n"
     "# R = Rz(yaw) Ry(pitch) Rx(roll) (URDF / ROS convention). Units: m, deg, s.\n"
 )
+TIME_OFFSET_HEADER = (
+    "# time_offset_s: t_imu = t_lidar + time_offset_s (the IMU stamps an instant this much later\n"
+    "# than the LiDAR). FAST-LIO takes it with the same sign as common/time_offset_lidar_to_imu\n"
+    "# (its imu_cbk subtracts it from every IMU stamp) with common/time_sync_en: false; in the\n"
+    "# fast_lio block below extrinsic_T/R go under mapping:, the two time keys under common:.\n"
+    "# LI-Init reports the same quantity, same sign, as 'Time Lag IMU to LiDAR (second)'.\n"
+)
 
 
 @dataclass
@@ -49,6 +63,9 @@ class CalibrationResult:
     rotation_sigma_deg: list[float] | None = None
     translation_sigma_m: list[float] | None = None
     time_offset_sigma_s: float | None = None
+    # l2calib.time_offset_probe.OffsetResolution, and where the offset's estimation started (s)
+    time_offset_resolution: Any | None = None
+    time_offset_start_s: float | None = None
     final_reward: float | None = None
     evaluations: int = 0
     iterations: int = 0
@@ -144,12 +161,18 @@ class CalibrationResult:
             },
             "training": training,
         }
+        if self.time_offset_s is not None:
+            out["time_offset"] = self._time_offset_block()
         if self.status != NOT_CALIBRATED:  # nothing to paste when the data calibrated nothing
             note = "; UNRELIABLE: read status_reasons first" if self.status == UNRELIABLE else ""
             out["fast_lio"] = {  # FAST-LIO: extrinsic_T = LiDAR position in IMU frame, R rows
                 "extrinsic_T": r(t),
                 "extrinsic_R": r(T[:3, :3], 9),
             }
+            if self.time_offset_s is not None:  # common/ in FAST-LIO's config (same sign)
+                out["fast_lio"]["time_sync_en"] = False
+                out["fast_lio"]["time_offset_lidar_to_imu"] = round(self.time_offset_s, 6)
+                out["li_init"] = {"time_lag_imu_to_lidar_s": round(self.time_offset_s, 6)}
             out["urdf"] = (
                 f'<origin xyz="{t[0]:.6f} {t[1]:.6f} {t[2]:.6f}" '
                 f'rpy="{np.radians(rpy[0]):.6f} {np.radians(rpy[1]):.6f} '
@@ -157,6 +180,19 @@ class CalibrationResult:
             )
         out.update(self.extra)
         return out
+
+    def _time_offset_block(self) -> dict[str, Any]:
+        """``time_offset``: convention, resolution from the reward probe, starting value."""
+        block: dict[str, Any] = {
+            "convention": "t_imu = t_lidar + time_offset_s (s)",
+            "start_s": self.time_offset_start_s,
+        }
+        res = self.time_offset_resolution
+        if res is not None:
+            block.update(res.to_dict())
+            if not np.isfinite(res.resolution_s):  # null resolution_s, and why
+                block["undetermined"] = "the reward is flat over +/-30 ms of offset"
+        return block
 
 
 def _finite(resolution: Any | None, name: str, digits: int) -> list[float | None] | None:
@@ -203,10 +239,14 @@ def write_calibration(path: str | Path, result: CalibrationResult) -> Path:
         header = HEADER.splitlines(keepends=True)[0] + STOPPED_HEADER
     elif result.status == NOT_CALIBRATED:
         header += NOT_CALIBRATED_HEADER
-    elif result.status == UNRELIABLE:
+    if result.time_offset_s is not None and not result.stopped_before_training:
+        header += TIME_OFFSET_HEADER
+    if result.status == UNRELIABLE:
         lines = body.splitlines(keepends=True)
         body = "".join(
-            UNRELIABLE_COMMENT + line if line.startswith(("fast_lio:", "urdf:")) else line
+            UNRELIABLE_COMMENT + line
+            if line.startswith(("fast_lio:", "urdf:", "li_init:"))
+            else line
             for line in lines
         )
     path.write_text(header + body)

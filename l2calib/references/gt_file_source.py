@@ -16,7 +16,10 @@ trajectory, ``T_world_lidar = T_world_body · T_body_lidar``:
 Clocks. ``time_offset_s`` is added to the file's stamps (``t_lidar = t_file + time_offset_s``).
 Each segment must be covered from its first point to its last scan end without gaps longer
 than ``max_gap_s``; with ``check_imu`` the file's rotation rate is compared with the gyro
-(:mod:`l2calib.references.imu_check`) to catch clock offsets and wrong quaternion order.
+(:mod:`l2calib.references.imu_check`) to catch clock offsets and wrong quaternion order. A shift
+found there is read as a LiDAR–IMU offset unless the file describes the IMU
+(:mod:`l2calib.references.clock_shift`); with ``train.estimate_time_offset`` it is handed on as
+the offset's starting value (``ReferenceTrajectory.time_offset_hint_s``) instead of stopping.
 Files are small and read directly, so this source does not use the cache.
 """
 
@@ -34,6 +37,7 @@ from l2calib.data import NS_PER_S, Segment
 from l2calib.errors import ConfigError, ReferenceSourceError
 from l2calib.interfaces import ReferenceSource, ReferenceTrajectory
 from l2calib.io.trajectory_files import read_trajectory
+from l2calib.references.clock_shift import attribute_shift, is_shifted
 from l2calib.references.imu_check import compare_rotation_rate
 from l2calib.references.options import GtFileOptions, TransformSpec
 from l2calib.trajectory import Trajectory
@@ -78,11 +82,23 @@ class GtFileReference(ReferenceSource):
 
     Args:
         options: File, format, frames and clock offset.
+        estimate_time_offset: ``train.estimate_time_offset``: a LiDAR–IMU shift found by the
+            clock check becomes the offset's starting value instead of an error.
+        time_offset_bound_s: ``policy.options.time_offset_bound_s`` (s): larger shifts cannot
+            be estimated; ``None``: unbounded.
         **_: Other pipeline context (ignored).
     """
 
-    def __init__(self, options: GtFileOptions, **_: object) -> None:
+    def __init__(
+        self,
+        options: GtFileOptions,
+        estimate_time_offset: bool = False,
+        time_offset_bound_s: float | None = 0.2,
+        **_: object,
+    ) -> None:
         self.options = options
+        self.estimate_time_offset = estimate_time_offset
+        self.time_offset_bound_s = time_offset_bound_s
         self._traj: Trajectory | None = None
         o = options
         self.constrains = o.constrains
@@ -148,12 +164,13 @@ class GtFileReference(ReferenceSource):
             )
         return traj.slice_time(int(st[lo]), int(st[hi]))
 
-    def _check_imu(self, seg: Segment, ref: Trajectory) -> None:
+    def _check_imu(self, seg: Segment, ref: Trajectory) -> float | None:
+        """Checks the file against the gyro; returns a LiDAR–IMU offset to start from, if any."""
         o = self.options
         res = compare_rotation_rate(ref, seg.imu, seg.start_ns, seg.end_ns)
         if not res.checked:
             log.info("gt-file: too little rotation in %s to check the file's clock", seg.name)
-            return
+            return None
         where = f"{o.path} in segment {seg.name}"
         if res.best_correlation < 0.5 or not (0.7 < res.scale < 1.4):
             raise ReferenceSourceError(
@@ -163,13 +180,15 @@ class GtFileReference(ReferenceSource):
                 "body rigidly attached to the sensors, and the quaternion order (qx qy qz qw); "
                 "or set reference.options.check_imu: false",
             )
-        if abs(res.best_shift_s) > 0.03 and res.best_correlation - res.correlation > 0.05:
-            raise ReferenceSourceError(
-                f"{where}: the file's rotation rate matches the IMU gyro only when shifted by "
-                f"{res.best_shift_s:+.3f} s (correlation {res.correlation:.2f} -> "
-                f"{res.best_correlation:.2f}): the file is on another clock",
-                fix=f"set reference.options.time_offset_s to "
-                f"{o.time_offset_s - res.best_shift_s:.3f}",
+        hint = None
+        if is_shifted(res):
+            hint = attribute_shift(
+                res,
+                where,
+                o.body_frame,
+                o.time_offset_s,
+                self.estimate_time_offset,
+                self.time_offset_bound_s,
             )
         if res.direction_residual > 0.3:
             raise ReferenceSourceError(
@@ -179,15 +198,17 @@ class GtFileReference(ReferenceSource):
                 fix="check the quaternion order (TUM/CSV: qx qy qz qw) and that the poses are "
                 "T_world_body, not T_body_world; or set reference.options.check_imu: false",
             )
+        return hint
 
     def compute(self, segments: Seq[Segment]) -> list[ReferenceTrajectory]:
         """The file's LiDAR poses covering each segment (see module docstring)."""
         out = []
         for seg in segments:
             ref = self._covering(seg)
+            hint = None
             if self.options.check_imu and len(seg.imu):
-                self._check_imu(seg, ref)
-            out.append(ReferenceTrajectory(seg.name, ref, self.constrains, NAME))
+                hint = self._check_imu(seg, ref)
+            out.append(ReferenceTrajectory(seg.name, ref, self.constrains, NAME, hint))
         if self.constrains == "position":
             log.warning("gt-file reference is position-only: the reward drops its rotation term")
         return out

@@ -5,7 +5,8 @@ extrinsic, so a ground-truth file of the LiDAR, the IMU or a mocap body must sho
 ``|ω(t)|`` as the gyro. Comparing the two catches, before any training, a file on another clock
 (the curves match only when shifted: the shift is the missing ``time_offset_s``) and orientations
 that are not the body's (wrong quaternion order, angles of another body: the curves do not match
-at all). Small LiDAR–IMU offsets (tens of ms, calibrated later) are below the tolerance.
+at all). Which clock a shift belongs to (the file's, or the IMU's against the LiDAR) is decided by
+the caller (:mod:`l2calib.references.clock_shift`): the check only measures it.
 """
 
 from __future__ import annotations
@@ -36,9 +37,9 @@ class RateCheck:
         best_correlation: Correlation at that shift.
         scale: Median ratio ``|ω_ref| / |ω_gyro|`` where the gyro turns faster than 0.2 rad/s.
         direction_residual: RMS of ``ω_ref - R ω_gyro`` over RMS ``|ω_gyro|`` for the best
-            constant rotation ``R`` (Kabsch): body rates of rigidly attached frames differ by a
-            constant rotation, so this is small for a consistent file (it catches permuted
-            quaternion components, which leave ``|ω|`` unchanged).
+            constant rotation ``R`` (Kabsch), at the best shift: body rates of rigidly attached
+            frames differ by a constant rotation, so this is small for a consistent file (it
+            catches permuted quaternion components, which leave ``|ω|`` unchanged).
         R_body_imu: ``[3, 3]`` that rotation (the rotation of the extrinsic, as a by-product).
     """
 
@@ -55,6 +56,11 @@ def _smooth(x: np.ndarray, width: int) -> np.ndarray:
     if width <= 1:
         return x
     return np.convolve(x, np.ones(width) / width, mode="same")
+
+
+def _overlap(a: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarray]:
+    """``a[i + k]`` and ``b[i]`` over their common indices."""
+    return (a[k:], b[: len(b) - k]) if k >= 0 else (a[: len(a) + k], b[-k:])
 
 
 def _corr(a: np.ndarray, b: np.ndarray) -> float:
@@ -109,17 +115,17 @@ def compare_rotation_rate(
     best, best_c = 0, -2.0
     max_k = min(int(max_shift_s / GRID_S), (n - 1) // 3)
     for k in range(-max_k, max_k + 1):
-        if k >= 0:
-            c = _corr(a[k:], b[: len(b) - k])
-        else:
-            c = _corr(a[: len(a) + k], b[-k:])
+        c = _corr(*_overlap(a, b, k))
         if c > best_c:
             best, best_c = k, c
     fast = good & (rate_gyro > 0.2)
     scale = float(np.median(rate_ref[fast] / rate_gyro[fast])) if fast.sum() > 10 else float("nan")
-    # Kabsch: w_ref ≈ R w_gyro with one rotation (unweighted Umeyama without translation)
-    wr = np.stack([_smooth(w_ref[good, k], width) for k in range(3)], axis=1)
-    wg = np.stack([_smooth(gyro[good, k], width) for k in range(3)], axis=1)
+    # Kabsch: w_ref ≈ R w_gyro with one rotation (unweighted Umeyama without translation), at
+    # the best shift so that a clock offset does not read as inconsistent directions
+    w_ref_s, gyro_s = _overlap(w_ref, gyro, best)
+    good_s = np.isfinite(w_ref_s).all(axis=1)
+    wr = np.stack([_smooth(w_ref_s[good_s, k], width) for k in range(3)], axis=1)
+    wg = np.stack([_smooth(gyro_s[good_s, k], width) for k in range(3)], axis=1)
     U, _, Vt = np.linalg.svd(wr.T @ wg)
     D = np.diag([1.0, 1.0, np.sign(np.linalg.det(U @ Vt))])
     R_bi = U @ D @ Vt

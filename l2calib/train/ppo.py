@@ -169,6 +169,8 @@ class PpoTrainer:
             "rotation_mean": min(float(torch.as_tensor(unc["rotation_sigma_rad"]).mean()), 1.0),
             "translation_mean": float(torch.as_tensor(unc["translation_sigma_m"]).mean()),
         }
+        if "time_offset_sigma_s" in unc:  # s, its own scale (not the translation's metres)
+            sigma["time_offset_mean"] = float(unc["time_offset_sigma_s"])
         for group in self.optim.param_groups:
             if group["role"] in sigma:
                 group["lr"] = self.cfg.mean_step_scale * sigma[group["role"]] * factor

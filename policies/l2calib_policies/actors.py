@@ -81,7 +81,12 @@ def _t(x: Any) -> Tensor:
 
 
 class TranslationParams(nn.Module):
-    """Free mean and ``log σ`` of the translation (and time offset), ``k`` = 3 or 4 entries."""
+    """Free mean and ``log σ`` of the translation (and time offset), ``k`` = 3 or 4 entries.
+
+    The time offset's mean is its own parameter (``offset_raw``), so that the trainer can give
+    it its own step size: Adam moves a parameter by about its learning rate per step, and a rate
+    scaled by the translation's σ (metres) moved the offset by ~150 ms per step.
+    """
 
     def __init__(self, loc0: Tensor, sigma0: Tensor, sigma_min: Tensor, bound: Tensor) -> None:
         super().__init__()
@@ -96,13 +101,17 @@ class TranslationParams(nn.Module):
                 "prior",
             )
         raw = torch.where(self.bounded, self.bound * torch.atanh(loc0 / self.bound), loc0)
-        self.loc_raw = nn.Parameter(raw)
+        self.loc_raw = nn.Parameter(raw[:3].clone())
+        self.offset_raw = nn.Parameter(raw[3:].clone()) if raw.shape[0] > 3 else None
         self.log_sigma_raw = nn.Parameter(_inv_soft_floor(sigma0.log(), self.log_sigma_min))
 
     def forward(self) -> tuple[Tensor, Tensor]:
         """Mean ``[k]`` and σ ``[k]``."""
         b = self.bound
-        loc = torch.where(self.bounded, b * torch.tanh(self.loc_raw / b), self.loc_raw)
+        raw = self.loc_raw
+        if self.offset_raw is not None:
+            raw = torch.cat([raw, self.offset_raw])
+        loc = torch.where(self.bounded, b * torch.tanh(raw / b), raw)
         return loc, _soft_floor(self.log_sigma_raw, self.log_sigma_min).exp()
 
 
@@ -200,6 +209,8 @@ class CalibrationPolicy(nn.Module):
         prior: Initial guess of ``T_imu_lidar`` with σ; ``None`` = no idea (uniform rotation,
             zero translation with ``options.init_translation_sigma_m``).
         seed: Seeds the actor's own sampling generator (independent of the global RNG).
+        init_time_offset_s: Starting mean of the time offset (s, ``t_imu = t_lidar + offset``;
+            e.g. the reference's clock check), with ``action_dim`` 8.
 
     Attributes:
         actor: ``ProbabilisticActor`` reading ``"observation"``, writing ``"action"`` and
@@ -214,6 +225,7 @@ class CalibrationPolicy(nn.Module):
         action_dim: int = 7,
         prior: ExtrinsicPrior | None = None,
         seed: int = 0,
+        init_time_offset_s: float = 0.0,
     ) -> None:
         super().__init__()
         if action_dim not in (7, 8):
@@ -225,7 +237,7 @@ class CalibrationPolicy(nn.Module):
             raise ConfigError(f"unknown policy kind {kind!r}", fix="use bingham or gaussian")
         self.kind, self.options, self.action_dim = kind, options, action_dim
         self.time_offset = action_dim == 8
-        self.params_net = self._make_params(kind, options, prior)
+        self.params_net = self._make_params(kind, options, prior, init_time_offset_s)
         keys = [*_KEYS[kind], "translation_loc", "translation_scale"]
         module = TensorDictModule(self.params_net, in_keys=[OBSERVATION_KEY], out_keys=keys)
         self.actor = ProbabilisticActor(
@@ -246,18 +258,23 @@ class CalibrationPolicy(nn.Module):
     def param_groups(self) -> dict[str, list[nn.Parameter]]:
         """Parameters by role.
 
-        ``rotation_mean`` and ``translation_mean`` (whose natural step sizes scale with the
-        current spread) and ``other`` (spreads, value head).
+        ``rotation_mean``, ``translation_mean`` and, with a time offset, ``time_offset_mean``
+        (whose natural step sizes scale with their current spread) and ``other`` (spreads,
+        value head).
         """
         net = self.params_net
         rot = [net.quat_raw] if hasattr(net, "quat_raw") else [net.quat_loc]
         trans = [net.translation.loc_raw]
-        chosen = {id(p) for p in rot + trans}
+        offset = [] if net.translation.offset_raw is None else [net.translation.offset_raw]
+        chosen = {id(p) for p in rot + trans + offset}
         other = [p for p in self.parameters() if id(p) not in chosen]
-        return {"rotation_mean": rot, "translation_mean": trans, "other": other}
+        groups = {"rotation_mean": rot, "translation_mean": trans, "other": other}
+        return {**groups, "time_offset_mean": offset} if offset else groups
 
     # ------------------------------------------------------------------ construction
-    def _make_params(self, kind: str, o: Any, prior: ExtrinsicPrior | None) -> nn.Module:
+    def _make_params(
+        self, kind: str, o: Any, prior: ExtrinsicPrior | None, offset0_s: float = 0.0
+    ) -> nn.Module:
         k = self.action_dim - 4
         loc0 = torch.zeros(k, dtype=F64)
         sigma0 = torch.full((k,), o.init_translation_sigma_m, dtype=F64)
@@ -275,6 +292,7 @@ class CalibrationPolicy(nn.Module):
         bound = torch.full((k,), o.translation_bound_m or inf, dtype=F64)
         if k == 4:
             sigma0[3], sigma_min[3] = o.init_time_offset_sigma_s, o.min_time_offset_sigma_s
+            loc0[3] = offset0_s
             bound[3] = o.time_offset_bound_s or inf
         trans = TranslationParams(loc0, sigma0, sigma_min, bound)
 

@@ -201,3 +201,13 @@ def test_state_dict_round_trip():
     b.load_state_dict(a.state_dict())
     assert torch.allclose(a.mode()["T_imu_lidar"], b.mode()["T_imu_lidar"])
     assert math.isfinite(float(b.distribution().entropy().detach()))
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_time_offset_starts_where_the_reference_measured_it(name):
+    policy = build(name, action_dim=8, init_time_offset_s=0.05)
+    assert policy.mode()["time_offset_s"] == pytest.approx(0.05, abs=1e-12)
+    offsets = sample(policy, 4000)["action"][:, 7]
+    assert float(offsets.mean()) == pytest.approx(0.05, abs=0.002)  # σ0 = 20 ms: ±3σ/√n
+    with pytest.raises(ConfigError, match="outside the bound"):
+        build(name, action_dim=8, init_time_offset_s=0.3)  # default bound 0.2 s
