@@ -57,6 +57,25 @@ class _Scan:
     normal: np.ndarray | None = None  # [N, 3] scan-line normals (LiDAR frame), NaN unknown
 
 
+def _facing(planes: Planes, world: np.ndarray, origin: np.ndarray, min_deg: float) -> Planes:
+    """The map planes that the query points see at ``min_deg`` or more from edge-on.
+
+    A plane that holds the query's viewing ray (``world - origin``, both ``[N, 3]``) is, most
+    often, one scan line of a structured surface seen from about here: a ring over a ribbed wall
+    or along a façade lies on the beam's cone, and the fit returns the cone's tangent plane,
+    which contains the ray. Its distance pulls the scan along the cone's normal (up/down on a
+    horizontal ring): measured on a 16-beam UAV flight, a quarter of the map planes at the true
+    pose were such fakes, 5-9 cm off, and the scan drifted 0.1° in pitch per scan. A surface
+    truly seen edge-on measures little anyway.
+    """
+    if min_deg <= 0 or len(planes.index) == 0:
+        return planes
+    ray = world[planes.index] - origin[planes.index]
+    cos = np.abs(np.einsum("ni,ni->n", planes.normal, ray)) / np.linalg.norm(ray, axis=1)
+    ok = cos >= np.sin(np.radians(min_deg))
+    return Planes(planes.index[ok], planes.normal[ok], planes.offset[ok])
+
+
 class CtLidarOdometry:
     """Runs the continuous-time odometry over consecutive scans (module docstring).
 
@@ -145,7 +164,7 @@ class CtLidarOdometry:
         """
         R, t = m.poses(s.tau)  # once: the world points and the scan-line normals both need R
         world = np.einsum("nij,nj->ni", R, s.points) + t
-        planes = self.map.associate(world, gate)
+        planes = _facing(self.map.associate(world, gate), world, t, self.o.min_incidence_deg)
         if s.normal is None or not lines:
             return planes
         rest = np.ones(len(world), bool)
@@ -294,8 +313,10 @@ class CtLidarOdometry:
         before = np.floor(2 * (now_s - o.lost_map_age_s)) / 2  # the old tree lives 0.5 s
         if before < 0:
             return nan, nan
-        world = m.transform(s.points, s.tau)
+        R, t = m.poses(s.tau)
+        world = np.einsum("nij,nj->ni", R, s.points) + t
         planes = self.map.associate_older(world, o.max_correspondence_m, before)
+        planes = _facing(planes, world, t, o.min_incidence_deg)
         r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
         n = planes.normal[np.abs(r) < 0.1]
         info = float(np.linalg.eigvalsh(n.T @ n)[0])

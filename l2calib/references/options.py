@@ -144,6 +144,13 @@ class CtLidarOptions(CacheOptions):
     robust_scale_start_m: float = Field(0.3, gt=0, description="Geman-McClure scale, first (m)")
     robust_scale_m: float = Field(0.05, gt=0, description="Geman-McClure scale, last (m)")
     sigma_point_m: float = Field(0.03, gt=0, description="point-to-plane noise (m)")
+    min_incidence_deg: float = Field(
+        8.0,
+        ge=0,
+        lt=90,
+        description="map planes within this angle of the point's viewing ray are not used "
+        "(deg; 0: all)",
+    )
     iterations: int = Field(6, ge=1, description="association rounds per scan")
     inner_steps: int = Field(2, ge=1, description="Levenberg-Marquardt steps per round")
     min_planes: int = Field(30, ge=18, description="fewest planes to solve a scan")
@@ -178,7 +185,7 @@ class CtLidarOptions(CacheOptions):
         4, ge=1, description="iterated deskew rounds of the first two scans (first scan's motion)"
     )
     lost_inlier_ratio: float = Field(
-        0.25, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
+        0.15, ge=0, le=1, description="a scan with fewer of its points on map planes is poor"
     )
     lost_scans: int = Field(3, ge=1, description="this many poor scans in a row: lost (error)")
     lost_grace_scans: int = Field(
