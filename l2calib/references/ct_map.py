@@ -44,6 +44,7 @@ class Planes:
     index: np.ndarray
     normal: np.ndarray
     offset: np.ndarray
+    one_line: np.ndarray | None = None  # [M] the plane's points all come from one scan line
 
 
 class _PlaneCache:
@@ -56,14 +57,16 @@ class _PlaneCache:
     would not (its nearest neighbours lie on its own line, which looks line-like).
     """
 
-    def __init__(self, points: np.ndarray, cell_m: float) -> None:
+    def __init__(self, points: np.ndarray, cell_m: float, line: np.ndarray) -> None:
         self.points = points
+        self.line = line  # [P] scan-line (ring) of each point, -1 unknown
         self.cell_m = cell_m
         self.tree = cKDTree(points) if len(points) else None
         self.keys = np.zeros(0, np.int64)  # sorted
         self.good = np.zeros(0, bool)
         self.normal = np.zeros((0, 3))
         self.offset = np.zeros(0)
+        self.one_line = np.zeros(0, bool)
 
 
 def _plane_tests(
@@ -111,20 +114,28 @@ class VoxelPlaneMap:
         self.points = np.zeros((0, 3))
         self.keys = np.zeros(0, np.int64)
         self.born = np.zeros(0)  # insertion time of each point (s, the caller's clock)
+        self.line = np.zeros(0, np.int64)  # scan line (ring) each point was seen on, -1 unknown
         self._now: _PlaneCache | None = None
         self._old: tuple[float, _PlaneCache] | None = None
 
     def __len__(self) -> int:
         return len(self.points)
 
-    def insert(self, points_world: np.ndarray, born: float = 0.0) -> None:
-        """Adds the points whose voxels are still empty, stamped ``born`` (s)."""
+    def insert(
+        self, points_world: np.ndarray, born: float = 0.0, line: np.ndarray | None = None
+    ) -> None:
+        """Adds the points whose voxels are still empty, stamped ``born`` (s).
+
+        ``line``: ``[N]`` the scan line (ring) each point was seen on (``None``: unknown).
+        """
         keys = voxel_keys(points_world, self.voxel_m)
         keys, first = np.unique(keys, return_index=True)
         new = ~np.isin(keys, self.keys, assume_unique=True)
         self.points = np.concatenate([self.points, points_world[first[new]]])
         self.keys = np.concatenate([self.keys, keys[new]])
         self.born = np.concatenate([self.born, np.full(int(new.sum()), born)])
+        lines = np.full(len(points_world), -1, np.int64) if line is None else np.asarray(line)
+        self.line = np.concatenate([self.line, lines[first[new]].astype(np.int64)])
         self._now = None
 
     def crop(self, centre: np.ndarray) -> None:
@@ -132,6 +143,7 @@ class VoxelPlaneMap:
         keep = np.einsum("ij,ij->i", self.points - centre, self.points - centre) <= self.radius_m**2
         if not keep.all():
             self.points, self.keys, self.born = self.points[keep], self.keys[keep], self.born[keep]
+            self.line = self.line[keep]
             self._now = None  # the old points' cache may keep cropped points: far, harmless
 
     def associate(self, query_world: np.ndarray, max_distance_m: float) -> Planes:
@@ -142,7 +154,7 @@ class VoxelPlaneMap:
         line-like, and the query is within ``max_distance_m`` of the plane.
         """
         if self._now is None:
-            self._now = _PlaneCache(self.points, self.cell_m)
+            self._now = _PlaneCache(self.points, self.cell_m, self.line)
         return self._planes(self._now, query_world, max_distance_m)
 
     def on_plane(
@@ -163,7 +175,7 @@ class VoxelPlaneMap:
             Indices ``[M]`` of the queries kept and the planes' offsets ``[M]`` (m).
         """
         if self._now is None:
-            self._now = _PlaneCache(self.points, self.cell_m)
+            self._now = _PlaneCache(self.points, self.cell_m, self.line)
         c = self._now
         empty = np.zeros(0, np.int64), np.zeros(0)
         if c.tree is None or len(c.points) < neighbours or len(query_world) == 0:
@@ -183,11 +195,12 @@ class VoxelPlaneMap:
         Their planes are kept until ``before`` changes.
         """
         if self._old is None or self._old[0] != before:
-            self._old = (before, _PlaneCache(self.points[self.born <= before], self.cell_m))
+            old = self.born <= before
+            self._old = (before, _PlaneCache(self.points[old], self.cell_m, self.line[old]))
         return self._planes(self._old[1], query_world, max_distance_m)
 
     def _planes(self, c: _PlaneCache, query_world: np.ndarray, max_distance_m: float) -> Planes:
-        empty = Planes(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0))
+        empty = Planes(np.zeros(0, np.int64), np.zeros((0, 3)), np.zeros(0), np.zeros(0, bool))
         if c.tree is None or len(c.points) < self.neighbours or len(query_world) == 0:
             return empty
         keys = voxel_keys(query_world, c.cell_m)
@@ -201,7 +214,7 @@ class VoxelPlaneMap:
         n = c.normal[at]
         dist = np.abs(np.einsum("ni,ni->n", n, query_world) - c.offset[at])
         idx = np.flatnonzero(c.good[at] & (dist <= max_distance_m))
-        return Planes(idx, n[idx], c.offset[at[idx]])
+        return Planes(idx, n[idx], c.offset[at[idx]], c.one_line[at[idx]])
 
     def _fit(self, c: _PlaneCache, keys: np.ndarray) -> None:
         """Fits the planes of voxels ``keys`` ``[M]`` (new, sorted) into the cache."""
@@ -213,7 +226,10 @@ class VoxelPlaneMap:
         normal = np.zeros((len(keys), 3))
         offset = np.zeros(len(keys))
         good = np.zeros(len(keys), bool)
+        one_line = np.zeros(len(keys), bool)
         if ok.any():
+            ln = c.line[nn[ok]]  # [M, k]
+            one_line[ok] = (ln[:, 0] >= 0) & np.all(ln == ln[:, :1], axis=1)
             nbr = c.points[nn[ok]]  # [M, k, 3]
             centre = nbr.mean(axis=1)
             d = nbr - centre[:, None]
@@ -226,3 +242,4 @@ class VoxelPlaneMap:
         c.good = np.concatenate([c.good, good])[order]
         c.normal = np.concatenate([c.normal, normal])[order]
         c.offset = np.concatenate([c.offset, offset])[order]
+        c.one_line = np.concatenate([c.one_line, one_line])[order]

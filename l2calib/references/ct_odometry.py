@@ -54,26 +54,28 @@ class _Scan:
     tau: np.ndarray  # [N] s after the scan start
     map_points: np.ndarray  # [M, 3] map-voxel sample
     map_tau: np.ndarray
+    map_line: np.ndarray | None = None  # [M] scan line (ring) of each, None unknown
     normal: np.ndarray | None = None  # [N, 3] scan-line normals (LiDAR frame), NaN unknown
 
 
 def _facing(planes: Planes, world: np.ndarray, origin: np.ndarray, min_deg: float) -> Planes:
-    """The map planes that the query points see at ``min_deg`` or more from edge-on.
+    """The map planes, less those fitted to one scan line within ``min_deg`` of the viewing ray.
 
-    A plane that holds the query's viewing ray (``world - origin``, both ``[N, 3]``) is, most
-    often, one scan line of a structured surface seen from about here: a ring over a ribbed wall
+    A one-line plane that holds the query's viewing ray (``world - origin``, both ``[N, 3]``) is
+    a scan line of a structured surface seen from about here: a ring over a ribbed wall
     or along a façade lies on the beam's cone, and the fit returns the cone's tangent plane,
     which contains the ray. Its distance pulls the scan along the cone's normal (up/down on a
     horizontal ring): measured on a 16-beam UAV flight, a quarter of the map planes at the true
-    pose were such fakes, 5-9 cm off, and the scan drifted 0.1° in pitch per scan. A surface
-    truly seen edge-on measures little anyway.
+    pose were such fakes, 5-9 cm off, and the scan drifted 0.1° in pitch per scan. Planes on
+    several lines stay (a dense LiDAR's grazing floor: dropping those lost a 64-beam hand-held
+    run), as do all planes of LiDARs without a ``ring`` field.
     """
-    if min_deg <= 0 or len(planes.index) == 0:
+    if min_deg <= 0 or len(planes.index) == 0 or planes.one_line is None:
         return planes
     ray = world[planes.index] - origin[planes.index]
     cos = np.abs(np.einsum("ni,ni->n", planes.normal, ray)) / np.linalg.norm(ray, axis=1)
-    ok = cos >= np.sin(np.radians(min_deg))
-    return Planes(planes.index[ok], planes.normal[ok], planes.offset[ok])
+    ok = ~planes.one_line | (cos >= np.sin(np.radians(min_deg)))
+    return Planes(planes.index[ok], planes.normal[ok], planes.offset[ok], planes.one_line[ok])
 
 
 class CtLidarOdometry:
@@ -151,7 +153,8 @@ class CtLidarOdometry:
             reg = np.sort(self.rng.choice(reg, o.max_points, replace=False))
         mp = voxel_subsample(p, o.map_voxel_m, self.rng)
         normal = None if ring is None else line_normals(p, ring, reg)
-        return _Scan(p[reg], tau[reg], p[mp], tau[mp], normal)
+        line = None if ring is None else ring[mp]
+        return _Scan(p[reg], tau[reg], p[mp], tau[mp], normal=normal, map_line=line)
 
     def _associate(self, s: _Scan, m: ScanMotion, gate: float, lines: bool = True) -> Planes:
         """Point-to-plane matches of the scan's sample at motion ``m``.
@@ -283,6 +286,7 @@ class CtLidarOdometry:
 
     def _insert(self, s: _Scan, m: ScanMotion, born: float = 0.0) -> None:
         world = m.transform(s.map_points, s.map_tau)
+        line = s.map_line
         gate = self.o.insert_max_residual_m
         if gate > 0 and len(self.map):
             # A point off a plane the map already has is a spurious return short of the
@@ -292,7 +296,8 @@ class CtLidarOdometry:
             keep = np.ones(len(world), bool)
             keep[planes.index[np.abs(r) > gate]] = False
             world = world[keep]
-        self.map.insert(world, born)
+            line = None if line is None else line[keep]
+        self.map.insert(world, born, line)
 
     def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
         """How the scan fits the old map: median distance (m) and weakest information.

@@ -148,8 +148,8 @@ class CtLidarOptions(CacheOptions):
         8.0,
         ge=0,
         lt=90,
-        description="map planes within this angle of the point's viewing ray are not used "
-        "(deg; 0: all)",
+        description="map planes fitted to one scan line and within this angle of the point's "
+        "viewing ray are not used (deg; 0: all are)",
     )
     iterations: int = Field(6, ge=1, description="association rounds per scan")
     inner_steps: int = Field(2, ge=1, description="Levenberg-Marquardt steps per round")
