@@ -39,12 +39,14 @@ class Planes:
         index: ``[M]`` indices of the query points that found a plane.
         normal: ``[M, 3]`` unit plane normals (world frame).
         offset: ``[M]`` plane offsets ``d`` so that the plane is ``n·x = d`` (m).
+        one_line: ``[M]`` whether all points of the plane's fit were seen on one scan line
+            (``ring``), or ``None`` where not known.
     """
 
     index: np.ndarray
     normal: np.ndarray
     offset: np.ndarray
-    one_line: np.ndarray | None = None  # [M] the plane's points all come from one scan line
+    one_line: np.ndarray | None = None
 
 
 class _PlaneCache:

@@ -19,8 +19,8 @@ The first scan has no map and no motion of its own: scans 0 and 1 are taken to s
 constant velocity, found by iterated deskewing (:meth:`CtLidarOdometry._bootstrap`).
 
 **Experimental.** It tracks to millimetres where KISS-ICP drifts by centimetres, but on some
-16-beam data (a UAV flight, the onset of a hand-held swing, a start mid-swing) errors in the
-weakly observed terms feed back through the map and it loses track. That is detected
+16-beam data (a VLP-16 ground vehicle, a VLP-16 UAV in a hall, a start mid-swing) it still
+drifts or loses track. That is detected
 (:meth:`CtLidarOdometry._check_tracking`) and raised, never returned as a reference. Measured
 cases and what was tried: ``docs/references.md``.
 
