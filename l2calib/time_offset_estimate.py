@@ -30,6 +30,7 @@ import torch
 
 from l2calib import geometry as geo
 from l2calib.data import NS_PER_S, ImuSamples, Sequence
+from l2calib.references.imu_check import pearson
 from l2calib.trajectory import Trajectory
 
 GRID_S = 0.001
@@ -123,13 +124,10 @@ def correlate_rates(
         )  # fmt: skip
     k_max = int(round(max_shift_s / GRID_S))
     base = int(round(pad / (GRID_S * NS_PER_S)))  # index in ``fine`` of the grid's start
-    oc = odo - odo.mean()
-    corr = np.empty(2 * k_max + 1)
-    for i, k in enumerate(range(-k_max, k_max + 1)):
-        # the gyro at t pairs with the odometry at t + s, s = k ms: gyro index base - k + j
-        seg = g[base - k : base - k + len(odo)]
-        sc = seg - seg.mean()
-        corr[i] = float((oc * sc).sum() / np.sqrt((oc * oc).sum() * (sc * sc).sum()))
+    # the gyro at t pairs with the odometry at t + s, s = k ms: gyro index base - k + j
+    corr = np.array(
+        [pearson(odo, g[base - k : base - k + len(odo)]) for k in range(-k_max, k_max + 1)]
+    )
     i = int(np.argmax(corr))
     best = corr[i]
     frac = 0.0

@@ -166,7 +166,7 @@ class CtLidarOdometry:
         line in the map, on the scan point's surface) and the point within ``line_gate_m``.
         """
         R, t = m.poses(s.tau)  # once: the world points and the scan-line normals both need R
-        world = np.einsum("nij,nj->ni", R, s.points) + t
+        world = np.einsum("nij,nj->ni", R, s.points) + t  # as m.transform, keeping R and t
         planes = _facing(self.map.associate(world, gate), world, t, self.o.min_incidence_deg)
         if s.normal is None or not lines:
             return planes

@@ -63,7 +63,8 @@ def _overlap(a: np.ndarray, b: np.ndarray, k: int) -> tuple[np.ndarray, np.ndarr
     return (a[k:], b[: len(b) - k]) if k >= 0 else (a[: len(a) + k], b[-k:])
 
 
-def _corr(a: np.ndarray, b: np.ndarray) -> float:
+def pearson(a: np.ndarray, b: np.ndarray) -> float:
+    """Pearson correlation of two equally long series (0 when either is constant)."""
     a, b = a - a.mean(), b - b.mean()
     den = float(np.sqrt((a * a).sum() * (b * b).sum()))
     return float((a * b).sum() / den) if den > 0 else 0.0
@@ -115,7 +116,7 @@ def compare_rotation_rate(
     best, best_c = 0, -2.0
     max_k = min(int(max_shift_s / GRID_S), (n - 1) // 3)
     for k in range(-max_k, max_k + 1):
-        c = _corr(*_overlap(a, b, k))
+        c = pearson(*_overlap(a, b, k))
         if c > best_c:
             best, best_c = k, c
     fast = good & (rate_gyro > 0.2)
@@ -132,4 +133,4 @@ def compare_rotation_rate(
     resid = float(np.sqrt(np.mean(np.sum((wr - wg @ R_bi.T) ** 2, axis=1))))
     spread = float(np.sqrt(np.mean(np.sum(wg**2, axis=1))))
     ratio = resid / spread if spread >= MIN_DIRECTION_RATE else float("nan")  # else noise-bound
-    return RateCheck(True, _corr(a, b), best * GRID_S, best_c, scale, ratio, R_bi)
+    return RateCheck(True, pearson(a, b), best * GRID_S, best_c, scale, ratio, R_bi)
