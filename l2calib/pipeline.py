@@ -60,6 +60,17 @@ def time_offset_bound_s(recipe: Recipe) -> float | None:
     return getattr(spec.config.model_validate(recipe.policy.options), "time_offset_bound_s", None)
 
 
+def offset_start_s(train: Any, hint_s: float | None) -> float | None:
+    """The time offset's starting mean (s), ``None`` when it is not estimated (or from 0).
+
+    The recipe's ``train.init_time_offset_s`` (the user's, e.g. from ``inspect``) wins over the
+    reference's clock-check hint ``hint_s``.
+    """
+    if not train.estimate_time_offset:
+        return None
+    return hint_s if train.init_time_offset_s is None else train.init_time_offset_s
+
+
 def read_sequences(recipe: Recipe, bags: Sequence[Path], progress: bool = False):
     """Opens the bags as sequences with the recipe's topics and conventions."""
     from l2calib.io.sequences import open_sequences
@@ -372,7 +383,7 @@ def _attempt(
     torch.manual_seed(seed)
     np.random.seed(seed)
     action_dim = 8 if cfg.estimate_time_offset else 7
-    start = data.time_offset_hint_s if cfg.estimate_time_offset else None
+    start = offset_start_s(cfg, data.time_offset_hint_s)
     policy = get_plugin("l2calib.policies", recipe.policy.name).build(
         recipe.policy.options,
         action_dim=action_dim,

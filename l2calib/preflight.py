@@ -34,6 +34,7 @@ from l2calib.io.stamps import StampStats, stamp_stats
 from l2calib.preflight_checks import Issue, check_imu, check_lidar, check_pair
 from l2calib.preflight_motion import MotionReport, motion_check
 from l2calib.recipe import DataConfig, SelectionConfig
+from l2calib.time_offset_estimate import OffsetEstimate
 
 
 @dataclass
@@ -93,6 +94,7 @@ class BagReport:
     issues: list[Issue] = field(default_factory=list)
     suggested: dict = field(default_factory=dict)
     motion: MotionReport | None = None
+    time_offset: OffsetEstimate | None = None
 
     @property
     def errors(self) -> list[Issue]:
@@ -170,6 +172,7 @@ def inspect_bag(
     data: DataConfig | None = None,
     progress: bool = False,
     selection: SelectionConfig | None = None,
+    time_offset: bool = False,
 ) -> BagReport:
     """Streams one bag and reports its topics, conventions, units and problems.
 
@@ -179,6 +182,8 @@ def inspect_bag(
         progress: Show a rich progress bar.
         selection: Recipe ``selection`` section: with it, the motion is checked against the
             selection's window and thresholds (``report.motion``, warnings when too little).
+        time_offset: Also estimate the LiDAR-IMU time offset (``report.time_offset``; a second
+            pass over the bag and a few seconds of LiDAR odometry, :mod:`l2calib.preflight_offset`).
 
     Raises:
         DataError: if the path is not a bag.
@@ -215,7 +220,20 @@ def inspect_bag(
     _collect_issues(report, data, lidar_t, imu_t)
     if selection is not None:
         _check_motion(report, readers, data, selection)
+    if time_offset and not report.errors:
+        from l2calib.preflight_offset import offset_check
+
+        report.time_offset, issues, suggested = offset_check(path, data, report.overlap_s)
+        report.issues.extend(issues)
+        _sort_issues(report)
+        for section, values in suggested.items():
+            report.suggested.setdefault(section, {}).update(values)
     return report
+
+
+def _sort_issues(report: BagReport) -> None:
+    order = {"error": 0, "warning": 1, "info": 2}
+    report.issues.sort(key=lambda i: order[i.severity])
 
 
 def _check_motion(
@@ -231,8 +249,7 @@ def _check_motion(
         report.path, readers[lidar.topic], readers[imu.topic], imu.units, selection
     )
     report.issues[:0] = issues  # warnings first among warnings: they decide whether to go on
-    order = {"error": 0, "warning": 1, "info": 2}
-    report.issues.sort(key=lambda i: order[i.severity])
+    _sort_issues(report)
 
 
 def _collect_issues(report: BagReport, data: DataConfig, lidar_t: list, imu_t: list) -> None:

@@ -137,6 +137,14 @@ class TrainConfig(StrictModel):
     max_iterations: int = Field(150, ge=1)
     max_evaluations: int = Field(5000, ge=1)
     estimate_time_offset: bool = False
+    init_time_offset_s: float | None = Field(
+        None,
+        ge=-0.5,
+        le=0.5,
+        description="starting value of the LiDAR-IMU time offset when estimate_time_offset "
+        "(s, t_imu = t_lidar + offset; `l2calib inspect` prints it); null: the reference's "
+        "clock check, else 0",
+    )
     lr: float = Field(3e-2, gt=0, description="Adam rate of the spreads and the value head")
     mean_step_scale: float = Field(
         0.3,

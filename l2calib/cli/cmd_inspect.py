@@ -150,8 +150,13 @@ def inspect(
     recipe: Path | None = typer.Option(None, "--recipe", "-r", help="Recipe (topics, overrides)."),
     set_: list[str] = typer.Option([], "--set", help=_SET_HELP),
     json_out: Path | None = typer.Option(None, "--json", help="Also write the reports as JSON."),
+    time_offset: bool = typer.Option(
+        True,
+        "--time-offset/--no-time-offset",
+        help="Estimate the LiDAR-IMU time offset (a few seconds of LiDAR odometry per bag).",
+    ),
 ) -> None:
-    """Check bags before calibrating: topics, rates, gaps, time fields, units, overlap, motion."""
+    """Check bags before calibrating: streams, units, overlap, motion and time offset."""
     from rich.console import Console
 
     from l2calib.errors import DataError
@@ -165,7 +170,13 @@ def inspect(
     console = Console()
     reports = []
     for bag in bags:
-        report = inspect_bag(bag, rec.data, progress=console.is_terminal, selection=rec.selection)
+        report = inspect_bag(
+            bag,
+            rec.data,
+            progress=console.is_terminal,
+            selection=rec.selection,
+            time_offset=time_offset,
+        )
         _render(report, console)
         reports.append(report)
     if json_out is not None:
