@@ -20,7 +20,7 @@ from l2calib.references.odometry_source import LidarOdometryReference
 from l2calib.trajectory import Trajectory
 
 NAME = "ct-lidar"
-ENGINE_VERSION = "7"  # bump when the odometry's results change, to invalidate cached references
+ENGINE_VERSION = "8"  # bump when the odometry's results change, to invalidate cached references
 
 
 def run_segment(

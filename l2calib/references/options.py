@@ -149,7 +149,16 @@ class CtLidarOptions(CacheOptions):
         ge=0,
         lt=90,
         description="map planes fitted to one scan line and within this angle of the point's "
-        "viewing ray are not used (deg; 0: all are)",
+        "viewing ray are not used (deg; 0: all are); with one_line_planes='never' this holds "
+        "for the drift check only",
+    )
+    one_line_planes: Literal["never", "facing"] = Field(
+        "never",
+        description="registration against map planes fitted to one scan line: 'never' (one "
+        "line does not fix a plane: a ring over a ribbed wall fits the beam cone's tangent "
+        "plane, a ring over a floor-wall corner a plane through the kink; such points take "
+        "their scan-line normal instead) or 'facing' (those at min_incidence_deg or more from "
+        "the viewing ray, engine 7)",
     )
     iterations: int = Field(6, ge=1, description="association rounds per scan")
     inner_steps: int = Field(2, ge=1, description="Levenberg-Marquardt steps per round")
@@ -175,6 +184,16 @@ class CtLidarOptions(CacheOptions):
     alpha_noise_window_s: float = Field(1.0, gt=0, description="... over this long (s)")
     noise_velocity_m_s: float = Field(0.5, gt=0, description="... of the velocity (m/s/√s)")
     noise_accel_m_s2: float = Field(1.0, gt=0, description="... of a (m/s²/√s)")
+    retry_inlier_drop: float = Field(
+        0.9,
+        gt=0,
+        le=1,
+        description="a scan whose share of points on a plane drops below this times the "
+        "median of the last five is solved again with a wider motion prior",
+    )
+    retry_widen: float = Field(
+        4.0, ge=1, description="... the body rate's and α's process noise times this (1: off)"
+    )
     initial_rate_rad_s: float = Field(
         3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"
     )

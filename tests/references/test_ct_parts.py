@@ -1,4 +1,4 @@
-"""ct-lidar's parts: scan-line normals, the planes' cache and the adaptive α noise."""
+"""ct-lidar's parts: line normals, the planes' cache, α noise, one-line planes, retries."""
 
 from __future__ import annotations
 
@@ -78,3 +78,49 @@ def test_alpha_noise_follows_the_angular_acceleration():
     assert odo._alpha_noise(steady, stamps, 20) == o.noise_alpha_min_rad_s2
     assert np.isclose(odo._alpha_noise(swing, stamps, 20), o.alpha_noise_gain * 5.0)
     assert odo._alpha_noise(steady, stamps, 1) == o.noise_alpha_rad_s2  # no history: loose
+
+
+def _planes_for_facing():
+    """Three planes seen along +x from the origin: a wall facing the ray (one line), a plane
+    holding the ray (one line: a ring's cone tangent), and the same on several lines."""
+    from l2calib.references.ct_map import Planes
+
+    world = np.array([[10.0, 0, 0], [10.0, 0, 0], [10.0, 0, 0]])
+    normal = np.array([[1.0, 0, 0], [0, 0, 1.0], [0, 0, 1.0]])
+    planes = Planes(np.arange(3), normal, np.array([10.0, 0, 0]), np.array([True, True, False]))
+    return planes, world, np.zeros((3, 3))
+
+
+def test_one_line_planes_never_register_and_only_grazing_ones_leave_the_drift_check():
+    from l2calib.references.ct_odometry import _facing
+
+    planes, world, origin = _planes_for_facing()
+    drift_check = _facing(planes, world, origin, 8.0)
+    assert list(drift_check.index) == [0, 2]  # the fake one-line plane (holds the ray) goes
+    registration = _facing(planes, world, origin, 8.0, all_lines=True)
+    assert list(registration.index) == [2]  # no one-line plane at all
+    assert list(_facing(planes, world, origin, 0.0).index) == [0, 1, 2]  # filter off
+
+
+def test_a_scan_that_fits_far_worse_is_solved_again_with_a_wider_prior():
+    odo = CtLidarOdometry(CtLidarOptions())
+    z = np.zeros(3)
+    last = ScanMotion(np.eye(3), z, z, z, z, z)
+    P = np.eye(18) * 1e-4
+    widened = []
+
+    def fake_solve(s, pred, P_pred):  # unit isolation: the retry's bookkeeping only
+        wide = P_pred[9, 9] > 1.0  # α's variance after a widened prediction
+        widened.append(wide)
+        odo.last_inlier_ratio = 0.7 if wide else 0.4
+        return pred, P_pred
+
+    odo._solve = fake_solve
+    odo.last_inlier_ratio = 0.4  # the first solve's
+    first = ScanMotion(np.eye(3), np.ones(3), z, z, z, z)
+    m, _ = odo._retry(None, first, P, last, P, 0.1, 8.0, [0.8] * 5)
+    assert widened == [True] and odo.retries == 1
+    assert np.allclose(m.t_b, 0) and odo.last_inlier_ratio == 0.7  # the retry's solution kept
+    odo.last_inlier_ratio = 0.78  # a usual scan: no retry
+    m, _ = odo._retry(None, first, P, last, P, 0.1, 8.0, [0.8] * 5)
+    assert widened == [True] and np.allclose(m.t_b, 1)
