@@ -27,7 +27,8 @@ from scipy.spatial.transform import Rotation
 from l2calib.alignment import ape
 from l2calib.data import NS_PER_S
 from l2calib.errors import ReferenceLostTrackError
-from l2calib.references.ct_odometry import CtLidarOdometry, sample_poses
+from l2calib.references.ct_motion import sample_poses
+from l2calib.references.ct_odometry import CtLidarOdometry
 from l2calib.references.options import CtLidarOptions
 from l2calib.sim import SimConfig, lidar_models, simulate
 from l2calib.trajectory import Trajectory

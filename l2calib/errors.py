@@ -51,7 +51,25 @@ class ReferenceSourceError(L2CalibError):
 
 
 class ReferenceLostTrackError(ReferenceSourceError):
-    """A LiDAR-odometry reference lost track on this data (the recipe's fallback may take over)."""
+    """A LiDAR-odometry reference lost track on this data (the recipe's fallback may take over).
+
+    Args:
+        message: Where and how track was lost (time, scan).
+        fix: What the user can do.
+        lost: Names of the segments on which track was lost (when the source knows them).
+        tracked: The references of the segments on which it did not lose track.
+    """
+
+    def __init__(
+        self,
+        message: str,
+        fix: str | None = None,
+        lost: list[str] | None = None,
+        tracked: list | None = None,  # list[ReferenceTrajectory]; no import cycle
+    ) -> None:
+        super().__init__(message, fix)
+        self.lost = lost or []
+        self.tracked = tracked or []
 
 
 class TrainingError(L2CalibError):

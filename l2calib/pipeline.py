@@ -114,6 +114,10 @@ def compute_references(
 ) -> list[ReferenceTrajectory]:
     """Runs the recipe's reference plugin on the segments (its fallback if it loses track).
 
+    Where the reference loses track on some segments but not all, those segments are dropped
+    (named in a note) and the references of the others returned; where it loses track on
+    every segment, the recipe's fallback computes them all.
+
     Args:
         recipe: The resolved recipe (``reference`` and ``data`` sections are used).
         segments: Selected segments.
@@ -122,8 +126,12 @@ def compute_references(
         note: Called with a message for the user when the fallback takes over.
         progress: Let the reference show progress bars (LiDAR odometry, per segment).
 
+    Returns:
+        One reference per kept segment, in order (``ref.segment`` names it).
+
     Raises:
-        ReferenceLostTrackError: if the reference loses track and the recipe has no fallback.
+        ReferenceLostTrackError: if the reference loses track on every segment and the recipe
+            has no fallback.
     """
     from l2calib.plugins import get_plugin
 
@@ -142,6 +150,15 @@ def compute_references(
     try:
         refs = compute(recipe.reference)
     except ReferenceLostTrackError as exc:
+        if exc.tracked:  # lost on some segments only: those go, the rest is calibrated on
+            msg = (
+                f"segment(s) {', '.join(exc.lost)} dropped: {exc.message}; calibrating on the "
+                f"{len(exc.tracked)} other(s)"
+            )
+            log.warning(msg)
+            if note is not None:
+                note(msg)
+            return exc.tracked
         if fallback is None:
             raise
         msg = (
@@ -155,6 +172,12 @@ def compute_references(
     if any(r.constrains == "position" for r in refs):
         log.info("the reference constrains positions only: the reward's rotation term is dropped")
     return refs
+
+
+def kept_segments(segments: Sequence[Segment], refs: Sequence[ReferenceTrajectory]) -> list:
+    """The segments that have a reference (one dropped where the reference lost track)."""
+    names = {r.segment for r in refs}
+    return [s for s in segments if s.name in names]
 
 
 def prepare_data(
@@ -195,6 +218,7 @@ def add_references(
     say = stage or (lambda _msg: None)
     say(f"computing the {recipe.reference.name} reference")
     data.references = compute_references(recipe, data.segments, data.sequences, data.notes.append)
+    data.segments = kept_segments(data.segments, data.references)
     if data.time_offset_hint_s is not None:
         data.notes.append(
             f"the {recipe.reference.name} reference's clock check measured a LiDAR–IMU time "

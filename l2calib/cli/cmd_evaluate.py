@@ -24,12 +24,13 @@ def evaluate_extrinsics(recipe, sequences, extrinsics: dict[str, tuple]):
     import torch
 
     from l2calib.alignment import ape
-    from l2calib.pipeline import compute_references
+    from l2calib.pipeline import compute_references, kept_segments
     from l2calib.plugins import get_plugin
     from l2calib.trajectory import Trajectory
 
     segments = [seq.segment() for seq in sequences]
     references = compute_references(recipe, segments, sequences)
+    segments = kept_segments(segments, references)
     options = {**recipe.backend.options, "map_mode": "odometry", "window_scans": 0}
     backend = get_plugin("l2calib.backends", recipe.backend.name).build(
         options, imu=recipe.data.imu

@@ -76,7 +76,9 @@ def reference(
     if truth is not None:
         table.add_column("APE RMSE cm (SE(3))")
         table.add_column("max cm")
-    for ref, path in zip(refs, paths, strict=True):
+    path_of = {seg.name: path for seg, path in zip(segments, paths, strict=True)}
+    for ref in refs:  # a segment where the reference lost track has none (noted above)
+        path = path_of[ref.segment]
         traj = ref.trajectory
         write_tum(path, traj)
         span = (int(traj.stamps_ns[-1]) - int(traj.stamps_ns[0])) / NS_PER_S

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from l2calib.data import NS_PER_S
+
 
 def _skew(v: np.ndarray) -> np.ndarray:
     """``[N, 3, 3]`` cross-product matrices of ``v`` ``[N, 3]``."""
@@ -107,3 +109,26 @@ def prior_residual(m: ScanMotion, pred: ScanMotion) -> np.ndarray:
             m.a - pred.a,
         ]
     )
+
+
+def sample_poses(
+    stamps_ns: np.ndarray, motions: list[ScanMotion], last_end_ns: int, per_scan: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Poses at ``per_scan`` even times in every scan interval plus the last scan's end.
+
+    Returns:
+        Stamps ``[N]`` int64 ns, rotations ``[N, 3, 3]`` and positions ``[N, 3]``
+        (``T_world_lidar``).
+    """
+    ends = np.append(stamps_ns[1:], last_end_ns)
+    out_t, out_R, out_p = [], [], []
+    for k, m in enumerate(motions):
+        span = int(ends[k] - stamps_ns[k])
+        offs = np.unique((np.arange(per_scan) * span) // per_scan)
+        if k == len(motions) - 1:
+            offs = np.append(offs, span) if span > offs[-1] else offs
+        R, t = m.poses(offs / NS_PER_S)
+        out_t.append(stamps_ns[k] + offs)
+        out_R.append(R)
+        out_p.append(t)
+    return np.concatenate(out_t), np.concatenate(out_R), np.concatenate(out_p)

@@ -18,11 +18,11 @@ moved into the world by their own poses and added to the map.
 The first scan has no map and no motion of its own: scans 0 and 1 are taken to share one
 constant velocity, found by iterated deskewing (:meth:`CtLidarOdometry._bootstrap`).
 
-**Experimental.** It tracks to millimetres where KISS-ICP drifts by centimetres, but on some
-16-beam data (a VLP-16 ground vehicle, a VLP-16 UAV in a hall, a start mid-swing) it still
-drifts or loses track. That is detected
+Where it cannot follow (a scene that does not pin every direction: a long corridor, an open
+field; a motion beyond its prior) it loses track; that is detected
 (:meth:`CtLidarOdometry._check_tracking`) and raised, never returned as a reference. Measured
-cases and what was tried: ``docs/references.md``.
+cases (the 40 s rig matrix of 16- to 128-beam LiDARs, degenerate worlds, cold starts) and what
+was tried: ``docs/references.md``.
 
 Written here rather than taken from a library: KISS-ICP (the ``kiss-icp`` reference) is the
 well-kept LiDAR odometry, but its constant-velocity deskew is the failure being fixed, and no
@@ -40,12 +40,12 @@ from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
 from l2calib.errors import ReferenceLostTrackError, ReferenceSourceError
-from l2calib.references.ct_map import Planes, VoxelPlaneMap, voxel_subsample
+from l2calib.references.ct_map import Planes, VoxelPlaneMap, facing, voxel_subsample
 from l2calib.references.ct_motion import ScanMotion, prior_residual, right_jacobian
 from l2calib.references.ct_normals import line_normals
 from l2calib.references.options import CtLidarOptions
 
-__all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian", "sample_poses"]
+__all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian"]
 
 
 @dataclass
@@ -56,38 +56,6 @@ class _Scan:
     map_tau: np.ndarray
     map_line: np.ndarray | None = None  # [M] scan line (ring) of each, None unknown
     normal: np.ndarray | None = None  # [N, 3] scan-line normals (LiDAR frame), NaN unknown
-
-
-def _facing(
-    planes: Planes, world: np.ndarray, origin: np.ndarray, min_deg: float, all_lines: bool = False
-) -> Planes:
-    """The map planes, less those fitted to one scan line within ``min_deg`` of the viewing ray.
-
-    A one-line plane that holds the query's viewing ray (``world - origin``, both ``[N, 3]``) is
-    a scan line of a structured surface seen from about here: a ring over a ribbed wall
-    or along a façade lies on the beam's cone, and the fit returns the cone's tangent plane,
-    which contains the ray. Its distance pulls the scan along the cone's normal (up/down on a
-    horizontal ring): measured on a 16-beam UAV flight, a quarter of the map planes at the true
-    pose were such fakes, 5-9 cm off, and the scan drifted 0.1° in pitch per scan. Planes on
-    several lines stay (a dense LiDAR's grazing floor: dropping those lost a 64-beam hand-held
-    run), as do all planes of LiDARs without a ``ring`` field.
-
-    ``all_lines``: drop every one-line plane (registration, ``one_line_planes='never'``). One
-    line does not fix a plane: besides the cone's tangent plane, a ring crossing a floor-wall
-    corner fits a plane through the kink (measured on a 16-beam UAV flight in a hall: floor
-    points 25 m away on planes tilted 60°, 20-35 cm off at the true pose, facing the ray).
-    """
-    if len(planes.index) == 0 or planes.one_line is None:
-        return planes
-    if all_lines:
-        ok = ~planes.one_line
-        return Planes(planes.index[ok], planes.normal[ok], planes.offset[ok], planes.one_line[ok])
-    if min_deg <= 0:
-        return planes
-    ray = world[planes.index] - origin[planes.index]
-    cos = np.abs(np.einsum("ni,ni->n", planes.normal, ray)) / np.linalg.norm(ray, axis=1)
-    ok = ~planes.one_line | (cos >= np.sin(np.radians(min_deg)))
-    return Planes(planes.index[ok], planes.normal[ok], planes.offset[ok], planes.one_line[ok])
 
 
 class CtLidarOdometry:
@@ -132,6 +100,7 @@ class CtLidarOdometry:
         )
         self.P0 = np.diag(p0**2)
         self.retries = 0  # scans solved again with a wider prior (see _retry)
+        self.lost_at_s: float | None = None  # where track was lost, s after the first scan
 
     def _new_map(self) -> VoxelPlaneMap:
         o = self.o
@@ -181,7 +150,7 @@ class CtLidarOdometry:
         R, t = m.poses(s.tau)  # once: the world points and the scan-line normals both need R
         world = np.einsum("nij,nj->ni", R, s.points) + t  # as m.transform, keeping R and t
         never = self.o.one_line_planes == "never"
-        planes = _facing(
+        planes = facing(
             self.map.associate(world, gate), world, t, self.o.min_incidence_deg, all_lines=never
         )
         if s.normal is None or not lines:
@@ -346,7 +315,7 @@ class CtLidarOdometry:
         R, t = m.poses(s.tau)
         world = np.einsum("nij,nj->ni", R, s.points) + t
         planes = self.map.associate_older(world, o.max_correspondence_m, before)
-        planes = _facing(planes, world, t, o.min_incidence_deg)
+        planes = facing(planes, world, t, o.min_incidence_deg)
         r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
         n = planes.normal[np.abs(r) < 0.1]
         info = float(np.linalg.eigvalsh(n.T @ n)[0])
@@ -383,6 +352,7 @@ class CtLidarOdometry:
         absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
         lost = max(self._poor, self._drift) >= o.lost_scans or unseen
         if lost or absurd or not np.all(np.isfinite(m.t_b)):
+            self.lost_at_s = float(when)
             raise ReferenceLostTrackError(
                 f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
                 f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, "
@@ -390,9 +360,10 @@ class CtLidarOdometry:
                 f"{o.lost_map_age_s:g} s before, which pins it by {self.last_old_info:.0f} points "
                 f"along its weakest direction, body rate "
                 f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
-                fix="ct-lidar is experimental and known to lose track with 16-beam LiDARs on "
-                "some motions (docs/references.md); use reference.name=kiss-icp, a gt-file or "
-                "rtk reference for this data",
+                fix="the scene may not pin a LiDAR-only odometry (a long corridor, an open "
+                "field, a LiDAR facing the sky) or the motion outran it: record where the LiDAR "
+                "sees structure on several sides, or use a gt-file or rtk reference "
+                "(docs/references.md lists where ct-lidar was measured)",
             )
 
     def _retry(
@@ -408,14 +379,23 @@ class CtLidarOdometry:
     ) -> tuple[ScanMotion, np.ndarray]:
         """The solve again with a wider motion prior where the scan fits far worse than before.
 
-        A hand swing that reverses within a scan (body rate +1.3 rad/s, α ~15 rad/s² in 0.1 s,
-        measured on a 64-beam hand-held run) is beyond the prior's process noise: the solve
-        stays near the prediction, fits fewer points, and the next prediction is worse still
-        (lost within three scans). When the share of points on a plane drops below
-        ``retry_inlier_drop`` times the median of the last five scans, the scan is solved again
-        from the same motion with the body rate's and α's noise widened ``retry_widen`` times;
-        the solution with more points on a plane is kept (CT-ICP, too, re-registers a scan
-        with looser constraints when its fit is poor).
+        Meant for a hand swing that reverses within a scan (body rate +1.3 rad/s, α ~15 rad/s²
+        in 0.1 s on a 64-beam hand-held run), beyond the prior's process noise, where the solve
+        would stay near the prediction and fit fewer points. When the share of points on a
+        plane drops below ``retry_inlier_drop`` times the median of the last five scans, the
+        scan is solved again from the same motion with the body rate's and α's noise widened
+        ``retry_widen`` times, and the solution with more points on a plane is kept (CT-ICP's
+        robust registration, too, registers a frame whose fit fails its assessment again, with
+        a denser sample and wider neighbourhoods).
+
+        Measured since (2026-12-03, every retry logged on hand-held runs of a 64-beam (9 s) and
+        a 32-beam LiDAR (20 s) in the hall): most retries change nothing (inlier share within
+        0.002, body rate within 0.03 rad/s), so this is not what kept the 64-beam run on track;
+        on the 32-beam run, as it lost track in its hardest swing (18.5 s), one retry was kept
+        for +0.002 and moved the body rate by 0.7 rad/s: the run tracks without retries (0.44
+        cm) and loses track with them. Both runs sit at an edge where tiny differences decide
+        whether that swing is followed (docs/references.md, "Engine 8"): the acceptance rule
+        is too weak, and what would hold the edge is open.
         """
         o = self.o
         if o.retry_widen <= 1 or len(ratios) < 5:
@@ -510,26 +490,3 @@ class CtLidarOdometry:
                     "ct-lidar produced a non-finite pose", fix="check the scans' point times"
                 )
         return stamps, motions
-
-
-def sample_poses(
-    stamps_ns: np.ndarray, motions: list[ScanMotion], last_end_ns: int, per_scan: int
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Poses at ``per_scan`` even times in every scan interval plus the last scan's end.
-
-    Returns:
-        Stamps ``[N]`` int64 ns, rotations ``[N, 3, 3]`` and positions ``[N, 3]``
-        (``T_world_lidar``).
-    """
-    ends = np.append(stamps_ns[1:], last_end_ns)
-    out_t, out_R, out_p = [], [], []
-    for k, m in enumerate(motions):
-        span = int(ends[k] - stamps_ns[k])
-        offs = np.unique((np.arange(per_scan) * span) // per_scan)
-        if k == len(motions) - 1:
-            offs = np.append(offs, span) if span > offs[-1] else offs
-        R, t = m.poses(offs / NS_PER_S)
-        out_t.append(stamps_ns[k] + offs)
-        out_R.append(R)
-        out_p.append(t)
-    return np.concatenate(out_t), np.concatenate(out_R), np.concatenate(out_p)

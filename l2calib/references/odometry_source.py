@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from l2calib.data import NS_PER_S, LidarScan, Segment, Sequence
-from l2calib.errors import DataError
+from l2calib.errors import DataError, ReferenceLostTrackError
 from l2calib.interfaces import ReferenceSource, ReferenceTrajectory
 from l2calib.references.cache import (
     ReferenceCache,
@@ -63,11 +63,15 @@ class LidarOdometryReference(ReferenceSource):
     ) -> Trajectory:
         """Poses ``T_world_lidar`` covering ``scans`` from their first point to the last end."""
 
+    def warmup_s(self) -> float:
+        """Seconds of scans loaded before each segment (``margin_s``; more where retried)."""
+        return self.options.margin_s
+
     def _warmup(self, seg: Segment) -> list[LidarScan]:
         seq = self.sequences.get(seg.sequence)
-        if seq is None or self.options.margin_s <= 0:
+        if seq is None or self.warmup_s() <= 0:
             return []
-        start = seg.start_ns - int(self.options.margin_s * NS_PER_S)
+        start = seg.start_ns - int(self.warmup_s() * NS_PER_S)
         first = seg.scans[0].stamp_ns if seg.measurements else seg.start_ns
         return [m for m in seq.scans.load(start, first - 1) if isinstance(m, LidarScan)]
 
@@ -114,5 +118,27 @@ class LidarOdometryReference(ReferenceSource):
         return ReferenceTrajectory(seg.name, traj, "pose", self.name)
 
     def compute(self, segments: Seq[Segment]) -> list[ReferenceTrajectory]:
-        """One reference per segment, in order (see module docstring)."""
-        return [self.compute_one(seg) for seg in segments]
+        """One reference per segment, in order (see module docstring).
+
+        Raises:
+            ReferenceLostTrackError: on any segment where the odometry lost track, after trying
+                every segment; its ``lost`` names those segments and ``tracked`` holds the
+                references of the others (the pipeline calibrates on those).
+        """
+        refs, lost = [], {}
+        for seg in segments:
+            try:
+                refs.append(self.compute_one(seg))
+            except ReferenceLostTrackError as exc:
+                lost[seg.name] = exc
+        if not lost:
+            return refs
+        name, first = next(iter(lost.items()))
+        others = f" (also lost: {', '.join(list(lost)[1:])})" if len(lost) > 1 else ""
+        raise ReferenceLostTrackError(
+            f"{self.name} lost track on {len(lost)} of {len(segments)} segment(s); on {name}: "
+            f"{first.message}{others}",
+            fix=first.fix,
+            lost=list(lost),
+            tracked=refs,
+        )

@@ -231,7 +231,10 @@ class CtLidarOptions(CacheOptions):
         "points leave a drift there unseen (unverified scan)",
     )
     lost_unverified_s: float = Field(
-        1.0, gt=0, description="drift check: unverified for this long in a row means lost (s)"
+        3.0,
+        gt=0,
+        description="drift check: unverified for this long in a row means lost (s; 1 s stopped "
+        "16-beam UAV flights tracking to 0.2 cm as they took off)",
     )
     max_rate_rad_s: float = Field(30.0, gt=0, description="a faster body rate means lost")
     max_speed_m_s: float = Field(40.0, gt=0, description="a higher speed means lost")
@@ -242,6 +245,17 @@ class CtLidarOptions(CacheOptions):
         ge=0,
         description="warm-up: also run on this many seconds of scans before each segment (when "
         "the pipeline passes the sequences), then keep only the segment's poses",
+    )
+    cold_starts: int = Field(
+        4,
+        ge=1,
+        description="starts tried per segment: when the odometry loses track before "
+        "cold_start_window_s into the segment (a start mid-swing, or a hard swing met with a "
+        "young map), it starts again twice as far back before the segment (margin_s, 2 x, 4 x, "
+        "...), as far as the sequence reaches",
+    )
+    cold_start_window_s: float = Field(
+        5.0, gt=0, description="... a loss later than this into the segment is not retried (s)"
     )
 
     @model_validator(mode="after")

@@ -230,7 +230,7 @@ def lost(swing):
 
 def test_lost_track_is_a_clear_error_not_a_wrong_reference(lost, tmp_path):
     """Scans that no longer match the map must raise."""
-    with pytest.raises(ReferenceLostTrackError, match="lost track .* s into the run.*kiss-icp"):
+    with pytest.raises(ReferenceLostTrackError, match="lost track .* s into the run.*gt-file"):
         build(tmp_path, cache=False).compute([lost])
 
 
@@ -248,3 +248,17 @@ def test_the_recipe_fallback_takes_over_when_ct_lidar_loses_track(lost, tmp_path
     assert ref.trajectory.stamps_ns[0] <= lost.start_ns  # a whole reference of the segment
     assert len(notes) == 1 and "ct-lidar reference failed (ct-lidar lost track" in notes[0]
     assert "fallback, kiss-icp, is used instead" in notes[0]
+
+
+def test_a_segment_where_track_is_lost_is_dropped_and_the_others_kept(swing, lost):
+    """Lost on one segment of two: that one is named and dropped, no fallback is needed."""
+    from l2calib.pipeline import compute_references, kept_segments
+
+    bad = Segment("bad", lost.sequence, lost.start_ns, lost.end_ns, lost.imu, lost.measurements)
+    recipe = recipe_from_dict({"reference": {"name": "ct-lidar", "options": {"cache": False}}})
+    notes: list[str] = []
+    refs = compute_references(recipe, [bad, swing.segment], note=notes.append)
+    assert [r.segment for r in refs] == [swing.segment.name]
+    assert refs[0].source == "ct-lidar"
+    assert [s.name for s in kept_segments([bad, swing.segment], refs)] == [swing.segment.name]
+    assert len(notes) == 1 and notes[0].startswith("segment(s) bad dropped: ct-lidar lost track")

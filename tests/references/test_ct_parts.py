@@ -92,7 +92,7 @@ def _planes_for_facing():
 
 
 def test_one_line_planes_never_register_and_only_grazing_ones_leave_the_drift_check():
-    from l2calib.references.ct_odometry import _facing
+    from l2calib.references.ct_map import facing as _facing
 
     planes, world, origin = _planes_for_facing()
     drift_check = _facing(planes, world, origin, 8.0)
@@ -112,7 +112,7 @@ def test_a_scan_that_fits_far_worse_is_solved_again_with_a_wider_prior():
     def fake_solve(s, pred, P_pred):  # unit isolation: the retry's bookkeeping only
         wide = P_pred[9, 9] > 1.0  # α's variance after a widened prediction
         widened.append(wide)
-        odo.last_inlier_ratio = 0.7 if wide else 0.4
+        odo.last_inlier_ratio = 0.75 if wide else 0.4  # the usual fit: 0.9 x 0.8 = 0.72
         return pred, P_pred
 
     odo._solve = fake_solve
@@ -120,7 +120,62 @@ def test_a_scan_that_fits_far_worse_is_solved_again_with_a_wider_prior():
     first = ScanMotion(np.eye(3), np.ones(3), z, z, z, z)
     m, _ = odo._retry(None, first, P, last, P, 0.1, 8.0, [0.8] * 5)
     assert widened == [True] and odo.retries == 1
-    assert np.allclose(m.t_b, 0) and odo.last_inlier_ratio == 0.7  # the retry's solution kept
+    assert np.allclose(m.t_b, 0) and odo.last_inlier_ratio == 0.75  # the retry's solution kept
     odo.last_inlier_ratio = 0.78  # a usual scan: no retry
     m, _ = odo._retry(None, first, P, last, P, 0.1, 8.0, [0.8] * 5)
     assert widened == [True] and np.allclose(m.t_b, 1)
+    odo.last_inlier_ratio = 0.4
+    odo._solve = lambda s, pred, P_pred: (setattr(odo, "last_inlier_ratio", 0.3), (pred, P_pred))[1]
+    m, _ = odo._retry(None, first, P, last, P, 0.1, 8.0, [0.8] * 5)  # the retry fits worse
+    assert odo.retries == 2 and np.allclose(m.t_b, 1) and odo.last_inlier_ratio == 0.4
+
+
+def _scans(first_s, n, dt=0.1):
+    """``n`` one-point scans ``dt`` apart from ``first_s`` (only their stamps matter here)."""
+    from l2calib.data import LidarScan
+
+    stamps = (np.arange(n) * dt + first_s) * NS_PER_S
+    return [LidarScan(int(t), np.zeros((1, 3)), np.zeros(1)) for t in np.round(stamps)]
+
+
+def test_cold_starts_go_twice_as_far_back_as_far_as_the_warmup_reaches():
+    from l2calib.references.ct_lidar_source import cold_starts
+
+    o = CtLidarOptions(margin_s=0.5, cold_starts=4)
+    warmup = _scans(10.0, 30)  # 10.0-12.9 s, the segment from 13.0 s
+    assert cold_starts(warmup, 13 * NS_PER_S, o) == [25, 20, 10, 0]  # 0.5, 1, 2, 4 (3) s back
+    assert cold_starts(warmup[25:], 13 * NS_PER_S, o) == [0]  # the sequence starts 0.5 s before
+    assert cold_starts([], 13 * NS_PER_S, o) == [0]  # no warm-up: the segment's first scan
+
+
+def test_a_start_that_loses_track_early_is_tried_again_earlier(monkeypatch):
+    import pytest
+
+    from l2calib.errors import ReferenceLostTrackError
+    from l2calib.references import ct_lidar_source
+
+    o = CtLidarOptions(margin_s=0.5, cold_starts=3, cold_start_window_s=4.0)
+    warmup, scans = _scans(10.0, 30), _scans(13.0, 10)
+    firsts = []
+
+    def fake_run(self, all_scans, on_scan=None):  # unit isolation: which starts are tried
+        firsts.append(all_scans[0].stamp_ns / NS_PER_S)
+        self.lost_at_s = lost_at.pop(0)
+        if self.lost_at_s is not None:
+            raise ReferenceLostTrackError("lost", fix="f")
+        stamps = np.array([s.stamp_ns for s in all_scans], np.int64)
+        return stamps, [ScanMotion(np.eye(3), *([np.zeros(3)] * 5))] * len(all_scans)
+
+    monkeypatch.setattr(CtLidarOdometry, "run", fake_run)
+    lost_at = [1.2, None]  # the first start loses track 1.2 s in, the second tracks
+    traj = ct_lidar_source.run_segment(scans, warmup, o, "w")
+    assert np.allclose(firsts, [12.5, 12.0]) and traj.stamps_ns[0] == scans[0].stamp_ns
+    firsts.clear()
+    lost_at = [5.0]  # 4.5 s into the segment: past the window, raised at once
+    with pytest.raises(ReferenceLostTrackError, match="^lost"):
+        ct_lidar_source.run_segment(scans, warmup, o, "w")
+    firsts.clear()
+    lost_at = [1.0, 1.0, 4.0]  # every start lost: the error says how many were tried
+    with pytest.raises(ReferenceLostTrackError, match="start 3 of 3, 2.0 s before w"):
+        ct_lidar_source.run_segment(scans, warmup, o, "w")
+    assert np.allclose(firsts, [12.5, 12.0, 11.0])
