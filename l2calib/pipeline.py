@@ -123,7 +123,8 @@ def compute_references(
         segments: Selected segments.
         sequences: The sequences the segments were cut from: LiDAR-odometry references start
             ``margin_s`` before each segment on their scans (warm-up).
-        note: Called with a message for the user when the fallback takes over.
+        note: Called with a message for the user when segments are dropped or the fallback
+            takes over.
         progress: Let the reference show progress bars (LiDAR odometry, per segment).
 
     Returns:

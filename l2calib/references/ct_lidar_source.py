@@ -82,7 +82,7 @@ def run_segment(
                     raise
                 raise ReferenceLostTrackError(
                     f"{exc.message} (start {n + 1} of {len(starts)}, {back:.1f} s before "
-                    f"{world_frame}; the later starts lost track too)",
+                    f"{world_frame}; the starts nearer to it lost track too)",
                     fix=exc.fix,
                 ) from exc
             log.info("%s: lost track %.1f s after start %d; starting earlier", world_frame,
