@@ -137,6 +137,11 @@ def is_degenerate(row: dict[str, Any]) -> bool:
     return row["world"] in DEGENERATE_WORLDS
 
 
+def matrix_rows(rows: list[dict[str, Any]], source: str) -> list[dict[str, Any]]:
+    """The rows of ``source`` on the issue's matrix (degenerate worlds left out)."""
+    return [r for r in rows if r["source"] == source and not is_degenerate(r)]
+
+
 def summary(row: dict[str, Any]) -> str:
     """One line of a row."""
     if row["lost"]:
@@ -159,7 +164,7 @@ def render(results: dict[str, Any]) -> str:
         "|---|---|---|---|---|---|---|---|",
     ]
     for source, ok in results["passed"].items():
-        rs = [r for r in rows if r["source"] == source and not is_degenerate(r)]
+        rs = matrix_rows(rows, source)
         tracked = [r for r in rs if not r["lost"]]
         ape = [r["ape_rmse_cm"] for r in tracked] or [float("nan")]
         out.append(
@@ -195,7 +200,7 @@ def passed_flags(rows: list[dict[str, Any]]) -> dict[str, bool]:
     """Per source: every row met its target and the median speed is within the target."""
     flags = {}
     for source in dict.fromkeys(r["source"] for r in rows):
-        rs = [r for r in rows if r["source"] == source and not is_degenerate(r)]
+        rs = matrix_rows(rows, source)
         if not rs:  # degenerate worlds only: nothing of the matrix to pass
             continue
         fast = np.median([r["s_per_scan"] for r in rs]) <= TARGET_S_PER_SCAN
@@ -251,7 +256,7 @@ def main() -> None:
         table.add_column(col)
     res = json.loads(RESULTS.read_text())
     for source, ok in res["passed"].items():
-        rs = [r for r in res["rows"] if r["source"] == source and not is_degenerate(r)]
+        rs = matrix_rows(res["rows"], source)
         table.add_row(
             source, str(len(rs)), str(sum(r["met"] for r in rs)), str(sum(r["lost"] for r in rs)),
             "yes" if ok else "no",
