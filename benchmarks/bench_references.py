@@ -182,18 +182,28 @@ def render(results: dict[str, Any]) -> str:
         ]
     out += [
         "",
-        "| LiDAR | profile | world | seed | s | source | APE RMSE cm | max cm | s/scan | met |",
-        "|---|---|---|---|---|---|---|---|---|---|",
+        "`engine`: the source's engine version; `9 (= 8)`: run with engine 8, whose results "
+        "engine 9 reproduces bit for bit where engine 8 did not lose track (engine 9 only adds "
+        "a roll-back where engine 8 raised; docs/references.md).\n",
+        "| LiDAR | profile | world | seed | s | source | engine | APE RMSE cm | max cm | s/scan "
+        "| met |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ape = "LOST" if r["lost"] else f"{r['ape_rmse_cm']:.2f}"
         mx = "-" if r["lost"] else f"{r['ape_max_cm']:.2f}"
         out.append(
             f"| {r['lidar']} | {r['profile']} | {r['world']} | {r['seed']} | {r['duration_s']:g} "
-            f"| {r['source']} | {ape} | {mx} | {r['s_per_scan']:.3f} | "
+            f"| {r['source']} | {_engine(r)} | {ape} | {mx} | {r['s_per_scan']:.3f} | "
             f"{'yes' if r['met'] else 'no'} |"
         )
     return "\n".join(out) + "\n"
+
+
+def _engine(row: dict[str, Any]) -> str:
+    """The row's engine, with the older engine it was measured with when carried over."""
+    engine = row.get("engine") or "-"
+    return f"{engine} (= {row['same_as_engine']})" if row.get("same_as_engine") else engine
 
 
 def passed_flags(rows: list[dict[str, Any]]) -> dict[str, bool]:

@@ -4,29 +4,40 @@ The engine is :mod:`l2calib.references.ct_odometry`: every scan has its own smoo
 aggressive hand-held motion that defeats KISS-ICP's constant-velocity deskew is followed (see
 ``docs/references.md`` for measured accuracy). Poses are written at ``poses_per_scan`` even
 times in every scan (the first at the scan's first point) and at the last scan's latest point,
-so the reference covers every point of the segment without extrapolation. Warm-up, per-segment
-world frames (``ct-lidar:<segment>``) and the disk cache are those of
+so the reference covers every point of the segment without extrapolation. Segments near each
+other, or near their recording's start, are cut from one run that starts there
+(:mod:`l2calib.references.ct_runs`); the others run one by one with the warm-up, per-segment
+world frames (``ct-lidar:<segment>``) and disk cache of
 :class:`~l2calib.references.odometry_source.LidarOdometryReference`.
 """
 
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence as Seq
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from l2calib.data import NS_PER_S, LidarScan
+from l2calib.data import NS_PER_S, LidarScan, Segment
 from l2calib.errors import ReferenceLostTrackError
+from l2calib.interfaces import ReferenceTrajectory
+from l2calib.references.cache import (
+    cache_key,
+    segment_fingerprint,
+    trajectory_arrays,
+    trajectory_from_arrays,
+)
 from l2calib.references.ct_motion import sample_poses
 from l2calib.references.ct_odometry import CtLidarOdometry
+from l2calib.references.ct_runs import OdometryRun, cut, plan_runs
 from l2calib.references.odometry_source import LidarOdometryReference
 from l2calib.trajectory import Trajectory
 
 log = logging.getLogger("l2calib.references")
 
 NAME = "ct-lidar"
-ENGINE_VERSION = "8"  # bump when the odometry's results change, to invalidate cached references
+ENGINE_VERSION = "9"  # bump when the odometry's results change, to invalidate cached references
 
 
 def cold_starts(warmup: list[LidarScan], first_ns: int, options) -> list[int]:  # noqa: ANN001
@@ -128,3 +139,66 @@ class CtLidarReference(LidarOdometryReference):
     ) -> Trajectory:
         """The odometry over the segment (see :func:`run_segment`)."""
         return run_segment(scans, warmup, self.options, world_frame, self.progress)
+
+    def compute_results(
+        self, segments: Seq[Segment]
+    ) -> dict[str, ReferenceTrajectory | ReferenceLostTrackError]:
+        """Segments cut from shared runs (:mod:`~l2calib.references.ct_runs`), else one by one."""
+        o = self.options
+        runs, alone = plan_runs(segments, self.sequences, o.from_start_s, o.chain_gap_s, o.margin_s)
+        out = super().compute_results(alone)
+        for run in runs:
+            if len(run.segments) == 1 and not run.leads_in():  # the per-segment path's own run
+                out |= super().compute_results(run.segments)
+                continue
+            try:
+                out |= self._compute_run(run)
+            except ReferenceLostTrackError as exc:
+                names = ", ".join(s.name for s in run.segments)
+                log.info("%s: the run over %s lost track (%s); each segment on its own",
+                         self.name, names, exc.message)  # fmt: skip
+                out |= super().compute_results(run.segments)
+        return out
+
+    def _compute_run(self, run: OdometryRun) -> dict[str, ReferenceTrajectory]:
+        """One odometry over the run, cut into its segments (each cached on its own)."""
+        scans = run.scans()
+        opts = self.options.model_dump(exclude={"cache", "cache_dir"})
+        run_id = segment_fingerprint(scans, run.start_ns, scans[-1].stamp_ns)
+        keys = {
+            s.name: cache_key(
+                {
+                    "source": self.name,
+                    "engine": self.version(),
+                    "options": opts,
+                    "run": run_id,
+                    "segment": segment_fingerprint(s.scans, s.start_ns, s.end_ns),
+                }
+            )
+            for s in run.segments
+        }
+        hits = {n: self.cache.load(k) for n, k in keys.items()} if self.cache.enabled else {}
+        cached = bool(hits) and all(a is not None for a in hits.values())
+        if cached:
+            trajs = {
+                s.name: trajectory_from_arrays(hits[s.name], "lidar", f"{self.name}:{s.name}")
+                for s in run.segments
+            }
+        else:
+            world = f"{self.name}:{run.sequence.name} run"
+            stamps, motions = _run(CtLidarOdometry(self.options), scans, world, self.progress)
+            t, R, p = sample_poses(
+                stamps, motions, scans[-1].end_stamp_ns, self.options.poses_per_scan
+            )
+            trajs = {s.name: cut(t, R, p, s, f"{self.name}:{s.name}") for s in run.segments}
+            for s in run.segments if self.cache.enabled else []:
+                summary = {"source": self.name, "segment": s.name, "run_scans": len(scans)}
+                try:
+                    self.cache.store(keys[s.name], trajectory_arrays(trajs[s.name]), summary)
+                except OSError as exc:  # as ReferenceCache.get_or_compute: never stops a run
+                    log.warning("cannot write the reference cache (%s)", exc)
+        lead = (run.segments[0].scans[0].stamp_ns - run.start_ns) / NS_PER_S
+        log.info("%s: %d segment(s) of %s from one run starting %.1f s before the first (%s)",
+                 self.name, len(trajs), run.sequence.name, lead,
+                 "cached" if cached else "computed")  # fmt: skip
+        return {n: ReferenceTrajectory(n, tr, "pose", self.name) for n, tr in trajs.items()}

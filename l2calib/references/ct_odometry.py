@@ -43,6 +43,7 @@ from l2calib.errors import ReferenceLostTrackError, ReferenceSourceError
 from l2calib.references.ct_map import Planes, VoxelPlaneMap, facing, voxel_subsample
 from l2calib.references.ct_motion import ScanMotion, prior_residual, right_jacobian
 from l2calib.references.ct_normals import line_normals
+from l2calib.references.ct_tracking import TrackingChecks
 from l2calib.references.options import CtLidarOptions
 
 __all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian"]
@@ -58,7 +59,7 @@ class _Scan:
     normal: np.ndarray | None = None  # [N, 3] scan-line normals (LiDAR frame), NaN unknown
 
 
-class CtLidarOdometry:
+class CtLidarOdometry(TrackingChecks):
     """Runs the continuous-time odometry over consecutive scans (module docstring).
 
     Scan to scan it is an iterated Kalman filter on the 18-parameter motion: the prediction is
@@ -100,6 +101,8 @@ class CtLidarOdometry:
         )
         self.P0 = np.diag(p0**2)
         self.retries = 0  # scans solved again with a wider prior (see _retry)
+        self.rollbacks = 0  # scans undone and solved again with a denser sample (_forward)
+        self.unseen = False  # lost because the scene stopped pinning the scan (_check_tracking)
         self.lost_at_s: float | None = None  # where track was lost, s after the first scan
 
     def _new_map(self) -> VoxelPlaneMap:
@@ -114,7 +117,8 @@ class CtLidarOdometry:
             o.plane_cell_m,
         )
 
-    def _prepare(self, scan: LidarScan) -> _Scan:
+    def _prepare(self, scan: LidarScan, density: float = 1.0) -> _Scan:
+        """The scan's registration and map samples (``density`` times denser registration)."""
         o = self.o
         p = np.asarray(scan.points_lidar, np.float64)
         tau = np.asarray(scan.offset_s, np.float64)
@@ -130,9 +134,9 @@ class CtLidarOdometry:
             keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
             p, tau = p[keep], tau[keep]
             ring = None if ring is None else ring[keep]
-        reg = voxel_subsample(p, o.scan_voxel_m, self.rng)
-        if len(reg) > o.max_points:
-            reg = np.sort(self.rng.choice(reg, o.max_points, replace=False))
+        reg = voxel_subsample(p, o.scan_voxel_m / density ** (1 / 3), self.rng)
+        if len(reg) > o.max_points * density:
+            reg = np.sort(self.rng.choice(reg, int(o.max_points * density), replace=False))
         mp = voxel_subsample(p, o.map_voxel_m, self.rng)
         normal = None if ring is None else line_normals(p, ring, reg)
         line = None if ring is None else ring[mp]
@@ -293,79 +297,6 @@ class CtLidarOdometry:
             line = None if line is None else line[keep]
         self.map.insert(world, born, line)
 
-    def _old_residual(self, s: _Scan, m: ScanMotion, now_s: float) -> tuple[float, float]:
-        """How the scan fits the old map: median distance (m) and weakest information.
-
-        Old: map points born ``lost_map_age_s`` or longer ago. The median is over the scan's
-        points that find a plane there (NaN when fewer than ``lost_old_points``); the information
-        is the smallest eigenvalue of ``Σ n nᵀ`` over those within 10 cm of their plane: how many
-        points pin the scan's position along its least constrained direction (NaN before the map
-        is old enough).
-
-        A drift shows here: the recent map drifts along with the poses that built it, so the scan
-        fits it well (the inlier ratio stays high), but the old map stays where it was; unless
-        the old map does not constrain the direction of the drift (a street canyon along its
-        axis, a UAV's height above unseen ground), which the information shows.
-        """
-        o = self.o
-        nan = float("nan")
-        before = np.floor(2 * (now_s - o.lost_map_age_s)) / 2  # the old tree lives 0.5 s
-        if before < 0:
-            return nan, nan
-        R, t = m.poses(s.tau)
-        world = np.einsum("nij,nj->ni", R, s.points) + t
-        planes = self.map.associate_older(world, o.max_correspondence_m, before)
-        planes = facing(planes, world, t, o.min_incidence_deg)
-        r = np.einsum("ni,ni->n", planes.normal, world[planes.index]) - planes.offset
-        n = planes.normal[np.abs(r) < 0.1]
-        info = float(np.linalg.eigvalsh(n.T @ n)[0])
-        if len(planes.index) < o.lost_old_points:
-            return nan, info
-        return float(np.median(np.abs(r))), info
-
-    def _check_tracking(self, k: int, stamps: np.ndarray, m: ScanMotion) -> None:
-        """Raises when the odometry has lost track, instead of returning a wrong reference.
-
-        Lost, for ``lost_scans`` scans in a row: fewer than ``lost_inlier_ratio`` of the
-        registration points on a map plane (``lost_young_inlier_ratio`` in the first
-        ``lost_grace_scans``, while the map is young and much of each scan new), or a median
-        distance above ``lost_old_residual_m`` to the planes of the map points older than
-        ``lost_map_age_s`` (a drift); for ``lost_unverified_s``, an old map that pins the scan's
-        position along some direction by fewer than ``lost_old_info`` points (a drift there
-        would go unseen); at once, a body rate / speed no rig reaches.
-        """
-        o = self.o
-        young = k <= o.lost_grace_scans
-        poor = self.last_inlier_ratio < (
-            o.lost_young_inlier_ratio if young else o.lost_inlier_ratio
-        )
-        self._poor = self._poor + 1 if poor else 0
-        drift = self.last_old_residual > o.lost_old_residual_m  # False for NaN
-        self._drift = self._drift + 1 if drift else 0
-        when = (stamps[k] - stamps[0]) / NS_PER_S
-        if not self.last_old_info < o.lost_old_info:  # verified, or NaN: not checked yet
-            self._unverified_since = None
-        elif self._unverified_since is None:
-            self._unverified_since = when
-        unverified = self._unverified_since is not None
-        unseen = unverified and when - self._unverified_since >= o.lost_unverified_s
-        absurd = np.linalg.norm(m.omega) > o.max_rate_rad_s or np.linalg.norm(m.v) > o.max_speed_m_s
-        lost = max(self._poor, self._drift) >= o.lost_scans or unseen
-        if lost or absurd or not np.all(np.isfinite(m.t_b)):
-            self.lost_at_s = float(when)
-            raise ReferenceLostTrackError(
-                f"ct-lidar lost track {when:.1f} s into the run (scan {k}: "
-                f"{100 * self.last_inlier_ratio:.0f} % of the points on the map, "
-                f"{100 * self.last_old_residual:.1f} cm median off the map of "
-                f"{o.lost_map_age_s:g} s before, which pins it by {self.last_old_info:.0f} points "
-                f"along its weakest direction, body rate "
-                f"{np.linalg.norm(m.omega):.1f} rad/s, speed {np.linalg.norm(m.v):.1f} m/s)",
-                fix="the scene may not pin a LiDAR-only odometry (a long corridor, an open "
-                "field, a LiDAR facing the sky) or the motion outran it: record where the LiDAR "
-                "sees structure on several sides, or use a gt-file or rtk reference "
-                "(docs/references.md lists where ct-lidar was measured)",
-            )
-
     def _retry(
         self,
         s: _Scan,
@@ -419,30 +350,72 @@ class CtLidarOdometry:
         P: np.ndarray,
         last: int,
         on_scan: Callable[[int], None] | None = None,
+        scans: list[LidarScan] | None = None,
     ) -> list[ScanMotion]:
-        """Inserts scan 0 with ``start`` and solves scans ``1..last`` (inclusive)."""
+        """Inserts scan 0 with ``start`` and solves scans ``1..last`` (inclusive).
+
+        Where a scan is found lost (but for an unverifiable scene, which a second solve cannot
+        change), the last ``rollback_scans`` scans are undone, map points included
+        (:meth:`_state`, :meth:`_restore`), and solved again with a ``rollback_density`` times
+        denser sample; at most once per run, and ``scans`` (the raw scans) are needed for it.
+        """
         self.map = self._new_map()
         self._insert(prepared[0], start)
         self._poor = self._drift = 0
         self._unverified_since: float | None = None
         motions = [start]
         ratios: list[float] = []
-        for k in range(1, last + 1):
+        saved = [self._state(P)]  # [k]: the state after scan k
+        dense: dict[int, _Scan] = {}  # the denser samples of rolled-back scans
+        k = 1
+        while k <= last:
+            s = dense.get(k, prepared[k])
             dt = float(stamps[k] - stamps[k - 1]) / NS_PER_S
             alpha_noise = self._alpha_noise(motions, stamps, k)
             pred, P_pred = self._predict(motions[-1], P, dt, alpha_noise)
-            m, P_new = self._solve(prepared[k], pred, P_pred)
-            m, P = self._retry(prepared[k], m, P_new, motions[-1], P, dt, alpha_noise, ratios)
+            m, P_new = self._solve(s, pred, P_pred)
+            m, P = self._retry(s, m, P_new, motions[-1], P, dt, alpha_noise, ratios)
             ratios.append(self.last_inlier_ratio)
             now = float(stamps[k] - stamps[0]) / NS_PER_S
-            self.last_old_residual, self.last_old_info = self._old_residual(prepared[k], m, now)
-            self._check_tracking(k, stamps, m)
+            self.last_old_residual, self.last_old_info = self._old_residual(s, m, now)
+            try:
+                self._check_tracking(k, stamps, m)
+            except ReferenceLostTrackError:
+                j = max(1, k - self.o.rollback_scans)
+                if dense or scans is None or self.o.rollback_scans == 0 or self.unseen:
+                    raise
+                density = self.o.rollback_density
+                dense = {i: self._prepare(scans[i], density) for i in range(j, k + 1)}
+                P = self._restore(saved[j - 1])
+                del motions[j:], ratios[j - 1 :], saved[j:]
+                self.rollbacks += 1
+                self.lost_at_s = None
+                k = j
+                continue
             motions.append(m)
-            self._insert(prepared[k], m, now)
+            self._insert(s, m, now)
             self.map.crop(m.t_b)
+            saved.append(self._state(P))
+            if len(saved) > self.o.rollback_scans + 1:
+                saved[-self.o.rollback_scans - 2] = None  # only the last few are rolled back to
             if on_scan is not None:
                 on_scan(k)
+            k += 1
         return motions
+
+    def _state(self, P: np.ndarray) -> tuple:
+        """What a roll-back restores (the map's arrays are never changed in place)."""
+        mp = self.map
+        return (mp.points, mp.keys, mp.born, mp.line, P, self._poor, self._drift,
+                self._unverified_since)  # fmt: skip
+
+    def _restore(self, state: tuple) -> np.ndarray:
+        """Puts a :meth:`_state` back; returns its covariance."""
+        mp = self.map
+        mp.points, mp.keys, mp.born, mp.line, P, self._poor, self._drift = state[:7]
+        self._unverified_since = state[7]
+        mp._now = mp._old = None  # their plane caches hold the undone points
+        return P
 
     def _bootstrap(self, prepared: list[_Scan], stamps: np.ndarray) -> ScanMotion:
         """The first scan's motion, from scans 0 and 1 sharing one constant velocity.
@@ -483,7 +456,9 @@ class CtLidarOdometry:
         # compete with the other core's work (measured 1.5x slower on 2 busy cores).
         with threadpool_limits(1, user_api="blas"):
             start = self._bootstrap(prepared, stamps)
-            motions = self._forward(prepared, stamps, start, self.P0, len(scans) - 1, on_scan)
+            motions = self._forward(
+                prepared, stamps, start, self.P0, len(scans) - 1, on_scan, scans
+            )
         for m in motions:
             if not all(np.all(np.isfinite(x)) for x in (m.R_b, m.t_b, m.omega, m.v)):
                 raise ReferenceLostTrackError(

@@ -117,6 +117,18 @@ class LidarOdometryReference(ReferenceSource):
         )
         return ReferenceTrajectory(seg.name, traj, "pose", self.name)
 
+    def compute_results(
+        self, segments: Seq[Segment]
+    ) -> dict[str, ReferenceTrajectory | ReferenceLostTrackError]:
+        """Each segment's reference, or the error of the odometry that lost track on it."""
+        out: dict[str, ReferenceTrajectory | ReferenceLostTrackError] = {}
+        for seg in segments:
+            try:
+                out[seg.name] = self.compute_one(seg)
+            except ReferenceLostTrackError as exc:
+                out[seg.name] = exc
+        return out
+
     def compute(self, segments: Seq[Segment]) -> list[ReferenceTrajectory]:
         """One reference per segment, in order (see module docstring).
 
@@ -125,12 +137,9 @@ class LidarOdometryReference(ReferenceSource):
                 every segment; its ``lost`` names those segments and ``tracked`` holds the
                 references of the others (the pipeline calibrates on those).
         """
-        refs, lost = [], {}
-        for seg in segments:
-            try:
-                refs.append(self.compute_one(seg))
-            except ReferenceLostTrackError as exc:
-                lost[seg.name] = exc
+        results = self.compute_results(segments)
+        refs = [r for s in segments if isinstance(r := results[s.name], ReferenceTrajectory)]
+        lost = {s.name: r for s in segments if isinstance(r := results[s.name], Exception)}
         if not lost:
             return refs
         name, first = next(iter(lost.items()))

@@ -194,6 +194,16 @@ class CtLidarOptions(CacheOptions):
     retry_widen: float = Field(
         4.0, ge=1, description="... the body rate's and α's process noise times this (1: off)"
     )
+    rollback_scans: int = Field(
+        6,
+        ge=0,
+        description="where a scan is found lost (a poor fit or a drift, not an unverifiable "
+        "scene), this many scans are undone, map points included, and solved again once with "
+        "a denser sample, at most once per run (0: off)",
+    )
+    rollback_density: float = Field(
+        2.0, ge=1, description="... that sample is this many times denser"
+    )
     initial_rate_rad_s: float = Field(
         3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"
     )
@@ -256,6 +266,18 @@ class CtLidarOptions(CacheOptions):
     )
     cold_start_window_s: float = Field(
         5.0, gt=0, description="... a loss later than this into the segment is not retried (s)"
+    )
+    from_start_s: float = Field(
+        60.0,
+        ge=0,
+        description="segments beginning within this many seconds of their recording's start "
+        "are cut from one run that starts there, usually at rest (measured 0.19-0.22 cm where "
+        "a start 1-6 s before the segment, mid-swing, gave 0.95-2.48 cm or lost track; 0: off)",
+    )
+    chain_gap_s: float = Field(
+        10.0,
+        ge=0,
+        description="segments of one recording closer than this (s) are cut from one run",
     )
 
     @model_validator(mode="after")

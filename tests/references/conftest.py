@@ -3,11 +3,14 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 sys.path.insert(0, str(Path(__file__).parent))
 
 from ref_helpers import SimCase, make_case  # noqa: E402
+
+from l2calib.data import Segment  # noqa: E402
 
 
 @pytest.fixture(scope="session")
@@ -40,6 +43,34 @@ def sway() -> SimCase:
         first=10,
         last=50,
     )
+
+
+@pytest.fixture(scope="session")
+def swing() -> SimCase:
+    """3 s of the aggressive hand-held swing (mean |ω| ≈ 2 rad/s) that defeats KISS-ICP."""
+    return make_case(
+        {
+            "duration_s": 3.5,
+            "seed": 3,
+            "world": {"name": "hall"},
+            "motion": {"profile": "handheld", "still_start_s": 0.0},
+            "lidar": {"model": "ouster-os1-16", "columns": 512},
+        },
+        first=10,
+        last=34,
+    )
+
+
+@pytest.fixture(scope="session")
+def lost(swing) -> Segment:
+    """The swing's segment with scans 4-9 scattered at random: no odometry can follow it."""
+    seg = swing.segment
+    rng = np.random.default_rng(0)
+    scans = list(seg.scans[:4])
+    for s in seg.scans[4:10]:
+        pts = rng.uniform(-20, 20, size=s.points_lidar.shape).astype(np.float32)
+        scans.append(type(s)(s.stamp_ns, pts, s.offset_s))
+    return Segment(seg.name, seg.sequence, seg.start_ns, seg.end_ns, seg.imu, scans)
 
 
 @pytest.fixture(scope="session")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from ref_helpers import make_case, rpe
+from ref_helpers import rpe
 from scipy.spatial.transform import Rotation
 
 from l2calib.alignment import ape
@@ -20,22 +20,6 @@ from l2calib.references.ct_odometry import ScanMotion, right_jacobian
 def build(cache_dir, sequences=None, **extra):
     spec = get_plugin("l2calib.references", "ct-lidar")
     return spec.build({"cache_dir": str(cache_dir), **extra}, sequences=sequences)
-
-
-@pytest.fixture(scope="module")
-def swing():
-    """3 s of the aggressive hand-held swing (mean |ω| ≈ 2 rad/s) that defeats KISS-ICP."""
-    return make_case(
-        {
-            "duration_s": 3.5,
-            "seed": 3,
-            "world": {"name": "hall"},
-            "motion": {"profile": "handheld", "still_start_s": 0.0},
-            "lidar": {"model": "ouster-os1-16", "columns": 512},
-        },
-        first=10,
-        last=34,
-    )
 
 
 @pytest.fixture(scope="module")
@@ -169,7 +153,7 @@ def test_cache_hit_and_invalidation(swing, cache_dir, refs, monkeypatch):
     def boom(*_, **__):
         raise AssertionError("recomputed although cached")
 
-    monkeypatch.setattr(ct_lidar_source, "run_segment", boom)
+    monkeypatch.setattr(ct_lidar_source, "_run", boom)  # both paths: one run, one segment
     again = build(cache_dir, [swing.sequence]).compute([swing.segment])[0]
     assert np.array_equal(again.trajectory.t_world_body, refs[0].trajectory.t_world_body)
     with pytest.raises(AssertionError, match="recomputed"):
@@ -195,37 +179,41 @@ def test_too_short_segment_and_bad_options_are_clear_errors(swing, tmp_path):
         )
 
 
+class Seen(Exception):
+    """Raised by a capturing stand-in once it has seen its arguments."""
+
+
 def test_the_pipeline_hands_the_sequences_over_for_warm_up(swing, monkeypatch):
+    """A segment 1 s into its recording runs from the recording's start (``from_start_s``)."""
     from l2calib.pipeline import compute_references
 
     seen = {}
 
-    class Seen(Exception):
-        pass
+    def capture(_odo, scans, *_, **__):
+        seen["scans"] = scans
+        raise Seen
+
+    monkeypatch.setattr(ct_lidar_source, "_run", capture)
+    recipe = recipe_from_dict({"reference": {"name": "ct-lidar", "options": {"cache": False}}})
+    with pytest.raises(Seen):
+        compute_references(recipe, [swing.segment], [swing.sequence])
+    assert seen["scans"][0].stamp_ns == swing.sequence.scans.stamps_ns[0]
+    assert len(seen["scans"]) == 10 + len(swing.segment.scans)  # 1 s of 10 Hz scans before
+
+
+def test_without_runs_each_segment_gets_its_warm_up(swing, monkeypatch, tmp_path):
+    seen = {}
 
     def capture(scans, warmup, *_, **__):
         seen["warmup"] = warmup
         raise Seen
 
     monkeypatch.setattr(ct_lidar_source, "run_segment", capture)
-    recipe = recipe_from_dict({"reference": {"name": "ct-lidar", "options": {"cache": False}}})
     with pytest.raises(Seen):
-        compute_references(recipe, [swing.segment], [swing.sequence])
+        build(tmp_path, [swing.sequence], cache=False, from_start_s=0).compute([swing.segment])
     first = swing.segment.scans[0].stamp_ns
-    assert len(seen["warmup"]) == 10  # 1 s of 10 Hz scans before the segment
+    assert len(seen["warmup"]) == 10  # margin_s: 1 s of 10 Hz scans before the segment
     assert all(s.stamp_ns < first for s in seen["warmup"])
-
-
-@pytest.fixture(scope="module")
-def lost(swing):
-    """The swing's segment with scans 4-9 scattered at random: no odometry can follow it."""
-    seg = swing.segment
-    rng = np.random.default_rng(0)
-    scans = list(seg.scans[:4])
-    for s in seg.scans[4:10]:
-        pts = rng.uniform(-20, 20, size=s.points_lidar.shape).astype(np.float32)
-        scans.append(type(s)(s.stamp_ns, pts, s.offset_s))
-    return Segment(seg.name, seg.sequence, seg.start_ns, seg.end_ns, seg.imu, scans)
 
 
 def test_lost_track_is_a_clear_error_not_a_wrong_reference(lost, tmp_path):
