@@ -116,6 +116,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
     """Simulates the case's sequences and calibrates them; returns the row."""
     import l2calib.pipeline as pipeline
     from l2calib.interfaces import ReferenceTrajectory
+    from l2calib.training import train_policy
 
     runs = [
         simulate(
@@ -141,7 +142,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         data = pipeline.PreparedData(sequences, segments, refs, selection)
     else:
         data = pipeline.prepare_data(recipe, sequences=sequences)
-    result, outcome = pipeline.train_policy(recipe, data, out_dir=None)
+    result, outcome = train_policy(recipe, data, out_dir=None)
     wall = time.monotonic() - t0
     T_gt = runs[0].T_imu_lidar
     dt_cm = np.abs(result.T_imu_lidar[:3, 3] - T_gt[:3, 3]) * 100
@@ -171,12 +172,28 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "undetermined": result.undetermined,
         "reference_agreement": result.reference_agreement,
         "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result
+        **_offset_fields(result, runs[0].time_offset_s),
         "warnings": result.warnings,
         "attempts": result.extra.get("attempts"),  # PPO restarts after a failed agreement check
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
         "machine": machine_info(),  # at the row's end; "load" above is kept for older readers
         "simulator_version": SIMULATOR_VERSION,  # rows without it: version 1
+    }
+
+
+def _offset_fields(result: Any, true_s: float) -> dict[str, Any]:
+    """The time offset's figures (s) when the run estimated it (``{}`` otherwise)."""
+    if result.time_offset_s is None:
+        return {}
+    res = result.time_offset_resolution
+    finite = res is not None and np.isfinite(res.resolution_s)
+    return {
+        "time_offset_s": round(float(result.time_offset_s), 5),
+        "time_offset_true_s": float(true_s),
+        "time_offset_start_s": result.time_offset_start_s,
+        "time_offset_resolution_s": round(float(res.resolution_s), 5) if finite else None,
+        "time_offset_probe_drops": None if res is None else [round(d, 6) for d in res.drops],
     }
 
 

@@ -181,3 +181,39 @@ def estimate_offset(
             reason=f"the LiDAR-only odometry lost track on the stretch ({e.message})",
         )  # fmt: skip
     return correlate_rates(poses, seq.imu, max_shift_s)
+
+
+def offset_from_references(
+    references: list, segments: list, sequences: list, max_shift_s: float
+) -> OffsetEstimate | None:
+    """The offset where the references' ``|ω|`` best follows the gyro: the median over segments.
+
+    The starting value of the offset's estimation when no other is given (issue 21): a rate
+    correlation pins a 20-50 ms offset to ~0.1 ms on hand-held data (module docstring), which
+    PPO otherwise has to find while it learns the extrinsic. Uses the references with full
+    poses on the LiDAR clock, except KISS-ICP's (its scan-rate poses were 7-27 ms off).
+
+    Args:
+        references: ``ReferenceTrajectory`` per segment.
+        segments: The segments (for their sequence).
+        sequences: The sequences (their IMU, which reaches past each segment).
+        max_shift_s: Largest offset searched (s).
+
+    Returns:
+        The median estimate over the segments where it is observable, or ``None``.
+    """
+    imu = {s.name: s.imu for s in sequences}
+    seg_of = {s.name: s for s in segments}
+    found = []
+    for ref in references:
+        seg = seg_of.get(ref.segment)
+        if ref.constrains != "pose" or ref.source == "kiss-icp" or seg is None:
+            continue
+        if seg.sequence not in imu or len(ref.trajectory) < 3:
+            continue
+        est = correlate_rates(ref.trajectory, imu[seg.sequence], max_shift_s)
+        if est.observable:
+            found.append(est)
+    if not found:
+        return None
+    return found[int(np.argsort([e.time_offset_s for e in found])[len(found) // 2])]

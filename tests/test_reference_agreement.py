@@ -2,8 +2,8 @@
 
 import yaml
 
+from l2calib.agreement import DISAGREEMENT_LIMITS, disagreement_warnings
 from l2calib.outputs.calibration_file import CalibrationResult, write_calibration
-from l2calib.pipeline import DISAGREEMENT_LIMITS, disagreement_warnings
 
 
 def test_agreement_within_limits_gives_no_warning():

@@ -39,8 +39,9 @@ def run_calibration(
     from l2calib.cli.live import CalibrationDisplay
     from l2calib.outputs.data_summary import data_summary
     from l2calib.outputs.writer import prepare_out_dir, write_outputs
-    from l2calib.pipeline import add_references, select_data, train_policy
+    from l2calib.pipeline import add_references, select_data
     from l2calib.status import assess, before_training
+    from l2calib.training import train_policy
 
     console = console or Console()
     out = prepare_out_dir(out, resume, force)

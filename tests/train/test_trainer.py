@@ -7,9 +7,10 @@ import torch
 from fakes import reference, tiny_sequence
 
 from l2calib.errors import ConfigError, TrainingError
-from l2calib.pipeline import PreparedData, train_policy
+from l2calib.pipeline import PreparedData
 from l2calib.recipe import Recipe
 from l2calib.sensitivity import probe
+from l2calib.training import train_policy
 
 
 def _data():
@@ -80,7 +81,7 @@ def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
 
 
 def test_restart_when_the_result_disagrees_keeps_the_best(fake_backend_env, tmp_path):
-    from l2calib.pipeline import RESTART_SEED_STRIDE
+    from l2calib.training import RESTART_SEED_STRIDE
 
     single, _ = _run(_recipe())
     assert single.warnings  # 3 iterations end far from the truth: the agreement check fails

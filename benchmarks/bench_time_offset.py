@@ -1,0 +1,242 @@
+"""LiDAR–IMU time offset: recovered by calibration, and what it costs to estimate (issue 21).
+
+Run: ``python -m benchmarks.bench_time_offset [--offsets-ms ...] [--references ...] [--uav]``
+(``--render`` only rewrites the markdown from the JSON).
+
+Rows: a simulated hand-held OS1-16 + VN100 rig, 20 s (the demo's scenario), whose IMU stamps
+lag or lead the LiDAR's by ``offset`` (``t_imu = t_lidar + offset``, the simulator's
+``rig.time_offset_s``), calibrated from no initial guess with ``train.estimate_time_offset=true``
+— once with the simulated LiDAR trajectory as the reference (``gt``, which measures the learning
+apart from the reference) and once with the LiDAR-only default (``ct-lidar``). At zero offset
+the same runs with estimation off are the baseline: the issue's targets are the offset within
+1 ms on hand-held data and an extrinsic error no more than 10 % (or 0.2 cm / 0.02°, whichever
+is larger) above that baseline. ``--uav`` adds one UAV sequence with a 20 ms offset: what the
+offset's resolution probe and ``inspect``'s estimator report where the offset is weakly
+observable.
+
+Results go to ``benchmarks/results/time_offset.json`` and ``time_offset.md`` (rows merge by
+key, so lanes may run side by side with ``--out``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import torch
+from rich.console import Console
+
+from benchmarks.bench_calibration import OS1_16_RIG, RIG, Case, run_case
+from benchmarks.machine import machine_info
+
+RESULTS = Path(__file__).parent / "results" / "time_offset.json"
+OFFSETS_MS = (-50, -20, -5, 0, 5, 20, 50)
+REFERENCES = ("gt", "ct-lidar")
+#: The issue's targets: offset error (ms); extrinsic slack over the zero-offset baseline.
+OFFSET_TARGET_MS = 1.0
+SLACK = (0.10, 0.2, 0.02)  # relative, cm, deg
+
+
+def _case(
+    offset_ms: float,
+    reference: str,
+    estimate: bool,
+    profile: str = "handheld",
+    start: str = "rates",
+) -> Case:
+    sim = dict(OS1_16_RIG, rig={**RIG, "time_offset_s": offset_ms / 1000})
+    overrides = [
+        f"reference.name={reference}",
+        f"train.estimate_time_offset={str(estimate).lower()}",
+    ]
+    if estimate and start == "zero":  # the estimation starts at 0, not at the rates' offset
+        overrides.append("train.init_time_offset_s=0.0")
+    seeds = [0]
+    if profile == "uav":
+        overrides += ["selection.window_s=10", "selection.budget_s=20"]
+        seeds = [11]
+    name = f"{profile} {offset_ms:+g} ms {reference} estimate {'on' if estimate else 'off'}"
+    return Case(name, profile, seeds, 20.0 if profile == "handheld" else 40.0, overrides, sim=sim)
+
+
+def run_row(
+    offset_ms: float, reference: str, estimate: bool, profile: str, start: str = "rates"
+) -> dict[str, Any]:
+    """One calibration, with the offset's fields (and ``inspect``'s estimate on the uav row)."""
+    case = _case(offset_ms, reference, estimate, profile, start)
+    row = run_case(case, train_seed=0)
+    row.update(profile=profile, offset_ms=offset_ms, reference=reference, estimate=estimate)
+    row["start"] = start if estimate else "-"
+    if estimate:
+        row["offset_error_ms"] = round(1000 * (row["time_offset_s"] - offset_ms / 1000), 3)
+    if profile == "uav":
+        row["inspect"] = _inspect(case)
+    return row
+
+
+def _inspect(case: Case) -> dict[str, Any]:
+    """What ``l2calib inspect``'s estimator says on the case's sequence (before calibrating)."""
+    from l2calib.sim import SimConfig, simulate
+    from l2calib.time_offset_estimate import estimate_offset
+
+    run = simulate(
+        SimConfig.model_validate(
+            {
+                "duration_s": case.duration_s,
+                "seed": case.seeds[0],
+                "motion": {"profile": case.profile},
+            }
+            | case.sim
+        )
+    )
+    est = estimate_offset(run.sequence())
+    return {
+        "time_offset_s": None if math.isnan(est.time_offset_s) else round(est.time_offset_s, 5),
+        "observable": est.observable,
+        "reason": est.reason,
+        "correlation": round(est.correlation, 3),
+        "sharpness": round(est.sharpness, 2),
+        "rate_std_rad_s": round(est.rate_std_rad_s, 3),
+    }
+
+
+def key(r: dict[str, Any]) -> tuple:
+    """A row's identity in the JSON (rows with the same key replace each other)."""
+    return r["profile"], r["offset_ms"], r["reference"], r["estimate"], start_of(r)
+
+
+def start_of(r: dict[str, Any]) -> str:
+    """Where the offset's estimation started: ``rates``, ``zero`` or ``-`` (not estimated).
+
+    ``rates``: the references' |ω| against the gyro (the default since 2026-12-03); rows from
+    before that existed started at zero.
+    """
+    if not r["estimate"]:
+        return "-"
+    return r.get("start", "zero")
+
+
+def verdicts(rows: list[dict[str, Any]]) -> dict[tuple, str]:
+    """Per hand-held row with estimation on: ``met`` / ``MISSED (why)`` against the baseline."""
+    base = {r["reference"]: r for r in rows if r["profile"] == "handheld" and not r["estimate"]}
+    out = {}
+    for r in rows:
+        if r["profile"] != "handheld" or not r["estimate"]:
+            continue
+        why = []
+        if abs(r["offset_error_ms"]) > OFFSET_TARGET_MS:
+            why.append(f"offset {r['offset_error_ms']:+.1f} ms")
+        b = base.get(r["reference"])
+        if b is None:
+            why.append("no baseline")
+        else:
+            t_max = max(b["t_err_cm"] * (1 + SLACK[0]), b["t_err_cm"] + SLACK[1])
+            r_max = max(b["r_err_deg"] * (1 + SLACK[0]), b["r_err_deg"] + SLACK[2])
+            if r["t_err_cm"] > t_max:
+                why.append(f"{r['t_err_cm']:.2f} cm > {t_max:.2f}")
+            if r["r_err_deg"] > r_max:
+                why.append(f"{r['r_err_deg']:.3f} deg > {r_max:.3f}")
+        out[key(r)] = "met" if not why else "MISSED (" + "; ".join(why) + ")"
+    return out
+
+
+def render(results: dict[str, Any]) -> str:
+    """The markdown table."""
+    rows = sorted(
+        results["rows"],
+        key=lambda r: (r["profile"], r["reference"], start_of(r), r["offset_ms"], r["estimate"]),
+    )
+    v = verdicts(rows)
+    lines = [
+        "# Time offset (benchmarks/bench_time_offset.py)\n",
+        "Simulated OS1-16 + VN100, `t_imu = t_lidar + offset`; calibrated from no initial guess. "
+        "Targets (hand-held): offset within 1 ms; extrinsic error within 10 % (or 0.2 cm / "
+        "0.02°) of the zero-offset run with estimation off. Wall times carry each row's load.\n",
+        "| profile | reference | offset ms | estimate | starts at | found ms | error ms "
+        "| resolution ms | t cm | r deg | evals | wall s | load | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        est = r["estimate"]
+        found = f"{1000 * r['time_offset_s']:+.2f}" if est else "-"
+        err = f"{r['offset_error_ms']:+.2f}" if est else "-"
+        res = r.get("time_offset_resolution_s")
+        res_txt = ("flat" if res is None else f"{1000 * res:.1f}") if est else "-"
+        lines.append(
+            f"| {r['profile']} | {r['reference']} | {r['offset_ms']:+g} | {'on' if est else 'off'} "
+            f"| {_start_text(r)} | {found} | {err} | {res_txt} | {r['t_err_cm']:.2f} "
+            f"| {r['r_err_deg']:.3f} "
+            f"| {r['evaluations']} | {r['wall_s']:.0f} | {r['machine']['load'][0]:.1f} "
+            f"| {v.get(key(r), '-')} |"
+        )
+    for r in rows:
+        if "inspect" in r:
+            i = r["inspect"]
+            said = (
+                f"{1000 * i['time_offset_s']:+.1f} ms"
+                if i["observable"]
+                else f"not claimed ({i['reason']})"
+            )
+            lines.append(
+                f"\n`inspect` on the {r['profile']} {r['offset_ms']:+g} ms sequence: {said}; "
+                f"|ω| std {i['rate_std_rad_s']} rad/s, correlation {i['correlation']}, "
+                f"sharpness {i['sharpness']}. Calibration's undetermined list: "
+                f"{'; '.join(x for x in r['undetermined'] if 'time offset' in x) or 'none'}."
+            )
+    return "\n".join(lines) + "\n"
+
+
+def _start_text(r: dict[str, Any]) -> str:
+    start = start_of(r)
+    if start == "rates" and r.get("time_offset_start_s") is not None:
+        return f"rates ({1000 * r['time_offset_start_s']:+.1f} ms)"
+    return start
+
+
+def main() -> None:
+    """Runs the rows, writes JSON and markdown after each."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--offsets-ms", type=float, nargs="+", default=list(OFFSETS_MS))
+    parser.add_argument("--references", nargs="+", default=list(REFERENCES))
+    parser.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
+                        help="also the zero-offset runs with estimation off")  # fmt: skip
+    parser.add_argument("--uav", action="store_true", help="also the uav row (20 ms, gt)")
+    parser.add_argument(
+        "--start", choices=("rates", "zero"), default="rates",
+        help="where the offset's estimation starts (rates, the default: the references' |ω|)",
+    )  # fmt: skip
+    parser.add_argument("--out", type=Path, default=RESULTS)
+    parser.add_argument("--render", action="store_true")
+    args = parser.parse_args()
+    if args.render:
+        args.out.with_suffix(".md").write_text(render(json.loads(args.out.read_text())))
+        return
+    torch.set_default_dtype(torch.float64)
+    console = Console()
+    plan = [(o, ref, True, "handheld") for ref in args.references for o in args.offsets_ms]
+    if args.baseline:
+        plan = [(0.0, ref, False, "handheld") for ref in args.references] + plan
+    if args.uav:
+        plan.append((20.0, "gt", True, "uav"))
+    for n, (offset, ref, est, profile) in enumerate(plan, 1):
+        console.print(f"[{n}/{len(plan)}] {profile} {offset:+g} ms, {ref}, estimation {est}")
+        row = run_row(offset, ref, est, profile, args.start)
+        existing = json.loads(args.out.read_text()) if args.out.is_file() else {"rows": []}
+        rows = [r for r in existing["rows"] if key(r) != key(row)] + [row]
+        results = {"benchmark": "bench_time_offset", "rows": rows, "machine": machine_info()}
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(results, indent=1))
+        args.out.with_suffix(".md").write_text(render(results))
+        console.print(
+            f"  t {row['t_err_cm']:.2f} cm, r {row['r_err_deg']:.3f} deg, offset "
+            f"{row.get('offset_error_ms', '-')} ms off, {row['evaluations']} evaluations, "
+            f"{row['wall_s']:.0f} s"
+        )
+    console.print(render(json.loads(args.out.read_text())))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,335 @@
+"""Training on prepared data: PPO attempts, each refined and probed, into a calibration result.
+
+:func:`train_policy` opens the training env once, runs PPO (restarting with another seed when
+the result disagrees with the reference, :mod:`l2calib.agreement`), refines the policy's mode on
+the reward (:mod:`l2calib.refine`), probes the reward around it (per-axis resolution,
+:mod:`l2calib.sensitivity`; the time offset's, :mod:`l2calib.time_offset_probe`) and returns the
+:class:`~l2calib.outputs.calibration_file.CalibrationResult`. The data comes from
+:mod:`l2calib.pipeline`.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from l2calib.agreement import disagreement_warnings, finite_or_none
+from l2calib.errors import TrainingError
+from l2calib.interrupt import Interrupted, stop_workers
+from l2calib.outputs.calibration_file import CalibrationResult
+from l2calib.pipeline import PreparedData, time_offset_bound_s
+from l2calib.recipe import Recipe
+
+log = logging.getLogger("l2calib")
+
+
+def offset_start_s(train: Any, hint_s: float | None) -> float | None:
+    """The time offset's starting mean (s), ``None`` when it is not estimated (or from 0).
+
+    The recipe's ``train.init_time_offset_s`` (the user's, e.g. from ``inspect``) wins over the
+    reference's clock-check hint ``hint_s``.
+    """
+    if not train.estimate_time_offset:
+        return None
+    return hint_s if train.init_time_offset_s is None else train.init_time_offset_s
+
+
+def undetermined_axes(
+    resolution: Any,
+    selection: Any | None,
+    rot_limit_deg: float = 1.0,
+    trans_limit_m: float = 0.05,
+) -> list[str]:
+    """Axes the data could not determine: flat reward along them, or weak excitation."""
+    from l2calib.sensitivity import undetermined
+
+    out = undetermined(resolution, rot_limit_deg, trans_limit_m)
+    if selection is not None:
+        out += [f"weakly excited: {w}" for w in selection.weak_axes]
+    return out
+
+
+class _Scorer:
+    """Rewards ``[N]`` of ``N`` extrinsics on the training env (spread over its workers).
+
+    Args:
+        env: The open training env (a ``CalibrationEnv`` or a ``ParallelEnv`` of them).
+        time_offset_s: The time offset (s) every candidate is scored with, or ``None``.
+    """
+
+    def __init__(self, env, time_offset_s: float | None):
+        self.env, self.offset = env, time_offset_s
+        self.last = None  # the latest call's RewardBreakdown (reward ingredients per candidate)
+
+    def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
+        from l2calib.train.envs import score_batch
+
+        offsets = None
+        if self.offset is not None:
+            offsets = torch.full((T_imu_lidar.shape[0],), float(self.offset), dtype=torch.float64)
+        self.last = score_batch(self.env, T_imu_lidar, offsets)
+        return self.last.reward.detach().to(torch.float64)
+
+
+#: Seed of restart ``k``: ``train.seed + k · RESTART_SEED_STRIDE`` (far from the seeds users
+#: and the benchmarks pick by hand, so a restart does not repeat another run's first attempt).
+RESTART_SEED_STRIDE = 10_007
+
+
+def train_policy(
+    recipe: Recipe,
+    data: PreparedData,
+    out_dir: Path | None,
+    resume: bool = False,
+    progress: Callable[[Any], None] | None = None,
+    stage: Callable[[str], None] | None = None,
+) -> tuple[CalibrationResult, Any]:
+    """Builds env + policy from the recipe, runs PPO; returns the calibration and the outcome.
+
+    When the result fails the reference-agreement check (:mod:`l2calib.agreement`), PPO starts
+    again from scratch with another seed, up to ``train.restarts`` times, and the attempt with the
+    highest reward is kept: on weakly excited data a run can settle in a local optimum that the
+    reward itself ranks far below the truth. Restart ``k`` keeps its checkpoint and metrics in
+    ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's evaluations,
+    iterations and wall time count every attempt.
+
+    Raises:
+        TrainingError: if ``resume`` is asked without an ``out_dir`` to resume from.
+    """
+    from l2calib.train.checkpoint import CHECKPOINT_NAME
+    from l2calib.train.envs import make_training_env
+
+    if resume and out_dir is None:
+        raise TrainingError(
+            "resume needs the output directory of the run to continue", fix="pass its out_dir"
+        )
+    say = stage or (lambda _msg: None)
+    _offset_from_rates(recipe, data, say)
+    say(f"preparing the {recipe.backend.name} odometry")
+    env = make_training_env(recipe, data.segments, data.references)
+    attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)
+    k = 0
+    try:  # the workers serve every attempt, its refinement and probe; down on any error
+        for k in range(recipe.train.restarts + 1):
+            seed = recipe.train.seed + k * RESTART_SEED_STRIDE
+            sub = out_dir if out_dir is None or k == 0 else out_dir / f"restart-{k}"
+            # A restart that had not begun when the run was killed starts afresh on --resume.
+            again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
+            result_outcome = _attempt(recipe, data, env, seed, sub, again, progress, say, k)
+            attempts.append((*result_outcome, seed))
+            result = attempts[-1][0]
+            if not result.warnings or k == recipe.train.restarts:
+                break
+            agreement = result.reference_agreement
+            say(
+                f"the result disagrees with the reference ({_agreement_text(agreement)}): "
+                f"PPO starts again with seed {seed + RESTART_SEED_STRIDE} "
+                f"(restart {k + 1} of at most {recipe.train.restarts})"
+            )
+    except Interrupted as exc:
+        stop_workers(env)  # they may be mid-batch: a polite close would wait for them
+        env.__dict__["is_closed"] = True
+        if out_dir is not None:
+            _locate_checkpoint(exc, out_dir, k)
+        raise
+    finally:
+        if not getattr(env, "is_closed", False):
+            env.close()
+    return _keep_best(attempts)
+
+
+def _offset_from_rates(recipe: Recipe, data: PreparedData, say: Callable[[str], None]) -> None:
+    """Sets ``data.rate_offset_s`` where the offset is estimated and nothing else starts it.
+
+    The references' ``|ω|`` against the gyro (:func:`~l2calib.time_offset_estimate.
+    offset_from_references`); a recipe's ``train.init_time_offset_s`` or a reference's clock
+    check comes first.
+    """
+    from l2calib.time_offset_estimate import offset_from_references
+
+    train = recipe.train
+    if not train.estimate_time_offset or train.init_time_offset_s is not None:
+        return
+    if data.time_offset_hint_s is not None:
+        return
+    bound = time_offset_bound_s(recipe) or 0.2
+    est = offset_from_references(data.references, data.segments, data.sequences, bound)
+    if est is None:
+        return
+    data.rate_offset_s = est.time_offset_s
+    msg = (
+        f"the references' rotation rate follows the gyro best at a LiDAR-IMU offset of "
+        f"{1000 * est.time_offset_s:+.1f} ms (t_imu = t_lidar + offset; correlation "
+        f"{est.correlation:.3f}): the offset's estimation starts there"
+    )
+    data.notes.append(msg)
+    say(msg)
+
+
+def _locate_checkpoint(exc: Interrupted, out_dir: Path, attempt: int) -> None:
+    """Fills in where a ``--resume`` of an interrupted run continues (attempt, iteration).
+
+    The trainer says so itself when it was interrupted; an interruption elsewhere (refinement,
+    probe, between attempts) continues from the newest checkpoint on disk.
+    """
+    from l2calib.train.checkpoint import CHECKPOINT_NAME, checkpoint_iterations
+
+    if exc.checkpoint is not None:
+        exc.attempt = attempt
+        return
+    for k in range(attempt, -1, -1):
+        path = (out_dir if k == 0 else out_dir / f"restart-{k}") / CHECKPOINT_NAME
+        if path.is_file():
+            exc.attempt, exc.checkpoint = k, path
+            exc.iteration = checkpoint_iterations(path)
+            return
+
+
+def _agreement_text(agreement: dict[str, float | None]) -> str:
+    t, r = agreement["translation_m"], agreement["rotation_deg"]
+    return " / ".join(f"{v:.3g} {u}" for v, u in ((t and 100 * t, "cm"), (r, "deg")) if v)
+
+
+def _keep_best(attempts: list[tuple[CalibrationResult, Any, int]]):
+    """The attempt with the highest reward, charged with every attempt's cost.
+
+    Evaluations, iterations and wall time are summed over the attempts.
+
+    Returns:
+        ``(result, outcome)``; with restarts, ``result.extra["attempts"]`` lists every attempt
+        (``calibration.yaml`` → ``attempts``).
+    """
+    best, outcome, _ = max(attempts, key=lambda a: a[0].final_reward)
+    if len(attempts) > 1:
+        best.evaluations = sum(r.evaluations for r, _, _ in attempts)
+        best.wall_time_s = sum(r.wall_time_s for r, _, _ in attempts)
+        best.iterations = sum(r.iterations for r, _, _ in attempts)
+        best.extra["attempts"] = [
+            {
+                "seed": seed,
+                "final_reward": round(r.final_reward, 6),
+                "reference_agreement": r.reference_agreement,
+                "kept": r is best,
+            }
+            for r, _, seed in attempts
+        ]
+    return best, outcome
+
+
+def _attempt(
+    recipe: Recipe,
+    data: PreparedData,
+    env,
+    seed: int,
+    out_dir: Path | None,
+    resume: bool,
+    progress: Callable[[Any], None] | None,
+    say: Callable[[str], None],
+    attempt: int = 0,
+) -> tuple[CalibrationResult, Any]:
+    """One PPO run from scratch with ``seed``, its refinement and its resolution probe.
+
+    ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user.
+    """
+    from l2calib import sensitivity
+    from l2calib.plugins import get_plugin
+    from l2calib.refine import refine
+    from l2calib.time_offset_probe import probe_evaluations, probe_time_offset
+    from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
+    from l2calib.train.ppo import PpoTrainer
+
+    cfg = recipe.train.model_copy(update={"seed": seed})
+    torch.manual_seed(seed)
+    np.random.seed(seed)
+    action_dim = 8 if cfg.estimate_time_offset else 7
+    start = offset_start_s(cfg, data.time_offset_hint_s)
+    policy = get_plugin("l2calib.policies", recipe.policy.name).build(
+        recipe.policy.options,
+        action_dim=action_dim,
+        prior=recipe.policy.prior,
+        seed=seed,
+        **({} if start is None else {"init_time_offset_s": start}),
+    )
+    fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
+    trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)
+    if resume:
+        trainer.resume()
+        which = "the first PPO run" if attempt == 0 else f"restart {attempt}"
+        say(
+            f"resuming {which} (seed {seed}) at iteration {len(trainer.outcome.history)} "
+            f"from {out_dir / CHECKPOINT_NAME}"
+        )
+    say("training")
+    outcome = trainer.run(progress)
+    mode = policy.mode()
+    T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
+    offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
+    score = _Scorer(env, offset)
+    refined = None
+    if cfg.refine_rounds > 0:
+        say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
+        refined = refine(
+            score, T_mode, cfg.refine_rounds, cfg.refine_rot_step_deg, cfg.refine_trans_step_m
+        )
+        T_mode = torch.from_numpy(refined.T_imu_lidar)
+        log.info(
+            "refine: reward %.5f -> %.5f, moved %.3f deg / %.2f cm (%d evaluations)",
+            refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
+            refined.evaluations,
+        )  # fmt: skip
+    say("probing the reward around the result (per-axis resolution)")
+    candidates = sensitivity.probe(T_mode)
+    resolution = sensitivity.resolve(score(candidates))
+    agreement = {  # probe candidate 0 is the result itself (rotation: None for RTK positions)
+        "translation_m": finite_or_none(score.last.mean_e_t[0], 5),
+        "rotation_deg": finite_or_none(torch.rad2deg(score.last.mean_e_r[0]), 4),
+    }
+    offset_res = None
+    if offset is not None:
+        say("probing the reward along the time offset (its resolution)")
+        offset_res = probe_time_offset(env, T_mode, offset)
+    unc = policy.uncertainty()
+    sources = sorted({r.source for r in data.references})
+    return CalibrationResult(
+        T_imu_lidar=T_mode.numpy(),
+        time_offset_s=offset,
+        rotation_sigma_deg=[float(x) for x in unc["rotation_sigma_deg"]],
+        translation_sigma_m=[float(x) for x in unc["translation_sigma_m"]],
+        time_offset_sigma_s=unc.get("time_offset_sigma_s"),
+        final_reward=resolution.reward,
+        evaluations=outcome.evaluations
+        + candidates.shape[0]
+        + (refined.evaluations if refined else 0)
+        + (probe_evaluations() if offset_res else 0),
+        iterations=len(outcome.history),
+        wall_time_s=outcome.wall_s,
+        stop_reason=outcome.stop_reason,
+        resolution=resolution,
+        undetermined=undetermined_axes(resolution, data.selection)
+        + (offset_res.undetermined() if offset_res else []),
+        time_offset_resolution=offset_res,
+        time_offset_start_s=(start or 0.0) if offset is not None else None,
+        reference_agreement=agreement,
+        warnings=disagreement_warnings(agreement, sources),
+        extra={
+            # which reference the reward compared with, and why (e.g. the recipe's fallback)
+            "reference": {"sources": sources, "notes": list(data.notes)},
+            **({"refine": _refine_summary(refined)} if refined else {}),
+        },
+    ), outcome
+
+
+def _refine_summary(refined: Any) -> dict[str, Any]:
+    """What the post-PPO refinement did (``calibration.yaml`` → ``refine``)."""
+    return {
+        "policy_mode_reward": round(refined.start_reward, 6),
+        "refined_reward": round(refined.reward, 6),
+        "moved_deg": round(refined.moved_deg, 4),
+        "moved_m": round(refined.moved_m, 5),
+        "evaluations": int(refined.evaluations),
+    }
