@@ -114,9 +114,8 @@ def rotation_errors_deg(T_gt: np.ndarray, T_est: np.ndarray) -> np.ndarray:
 
 def run_case(case: Case, train_seed: int) -> dict[str, Any]:
     """Simulates the case's sequences and calibrates them; returns the row."""
-    import l2calib.pipeline as pipeline
+    from l2calib.calibration import Calibration
     from l2calib.interfaces import ReferenceTrajectory
-    from l2calib.training import train_policy
 
     runs = [
         simulate(
@@ -135,14 +134,19 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
     recipe = load_recipe(case.recipe, [*overrides, f"train.seed={train_seed}"])
     sequences = [r.sequence() for r in runs]
     t0 = time.monotonic()
+    exact = None
     if "reference.name=gt" in case.overrides:  # the simulator's exact LiDAR trajectory
         gt = {r.sequence().name: r.gt_lidar for r in runs}
-        segments, selection = pipeline.select_segments(recipe, sequences)
-        refs = [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segments]
-        data = pipeline.PreparedData(sequences, segments, refs, selection)
-    else:
-        data = pipeline.prepare_data(recipe, sequences=sequences)
-    result, outcome = train_policy(recipe, data, out_dir=None)
+
+        def exact(segments):
+            return [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segments]
+
+    run = Calibration(recipe)  # the same stages as `l2calib calibrate`, writing nothing
+    data = run.prepare(sequences=sequences, references=exact)
+    if run.stopped:
+        raise RuntimeError(f"{case.name}: the data stopped the run: {run.verdict.reasons}")
+    result = run.train()
+    run.assess()
     wall = time.monotonic() - t0
     T_gt = runs[0].T_imu_lidar
     dt_cm = np.abs(result.T_imu_lidar[:3, 3] - T_gt[:3, 3]) * 100
@@ -169,6 +173,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "evaluations": result.evaluations,
         "iterations": result.iterations,
         "stop": result.stop_reason,
+        "status": result.status,
         "undetermined": result.undetermined,
         "reference_agreement": result.reference_agreement,
         "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result

@@ -121,3 +121,87 @@ class OdometryBackend(ABC):
 
     def close(self) -> None:  # noqa: B027 - optional hook
         """Releases resources (worker pools, files). Optional."""
+
+
+@dataclass(frozen=True, eq=False)
+class Extrinsic:
+    """One extrinsic: a policy's mode, a candidate or a result.
+
+    Attributes:
+        T_imu_lidar: ``[4, 4]`` float64 transform mapping LiDAR-frame points into the IMU frame.
+        time_offset_s: LiDAR–IMU time offset (s, ``t_imu = t_lidar + offset``), or ``None`` when
+            it is not estimated.
+    """
+
+    T_imu_lidar: torch.Tensor
+    time_offset_s: float | None = None
+
+    @property
+    def t_imu_lidar(self) -> torch.Tensor:
+        """``[3]`` translation (m): the LiDAR's origin in the IMU frame."""
+        return self.T_imu_lidar[:3, 3]
+
+    @property
+    def quat_xyzw(self) -> torch.Tensor:
+        """``[4]`` rotation LiDAR → IMU as a unit quaternion (x, y, z, w)."""
+        from l2calib.geometry import matrix_to_quat
+
+        return matrix_to_quat(self.T_imu_lidar[:3, :3])
+
+
+@dataclass(frozen=True, eq=False)
+class PolicySpread:
+    """Per-axis spreads of a policy (how wide it still samples), not an uncertainty of the data.
+
+    Attributes:
+        rotation_sigma_rad: ``[3]`` rotation σ about the mode's (LiDAR) axes (rad).
+        translation_sigma_m: ``[3]`` translation σ along the IMU axes (m).
+        time_offset_sigma_s: The time offset's σ (s), or ``None`` when it is not estimated.
+    """
+
+    rotation_sigma_rad: torch.Tensor
+    translation_sigma_m: torch.Tensor
+    time_offset_sigma_s: float | None = None
+
+    @property
+    def rotation_sigma_deg(self) -> torch.Tensor:
+        """``[3]`` rotation σ (deg)."""
+        return torch.rad2deg(self.rotation_sigma_rad)
+
+
+class CalibrationPolicy(ABC):
+    """What the trainer needs of a policy plugin (group ``l2calib.policies``).
+
+    A plugin's spec builds one with ``spec.build(options, action_dim=7|8, prior=…, seed=…)``;
+    ``action_dim`` comes from the env's ``action_spec`` (7: quaternion xyzw + translation m;
+    8: + time offset s).
+
+    Attributes:
+        actor: TorchRL ``ProbabilisticActor`` reading ``"observation"`` and writing ``"action"``
+            ``[..., action_dim]`` and its log-probability (:attr:`log_prob_key`).
+        value: TorchRL ``ValueOperator`` writing ``"state_value"``.
+    """
+
+    actor: torch.nn.Module
+    value: torch.nn.Module
+
+    @property
+    @abstractmethod
+    def log_prob_key(self) -> str:
+        """Key of the action's log-probability in the actor's output."""
+
+    @abstractmethod
+    def mode(self) -> Extrinsic:
+        """The most likely extrinsic (with ``time_offset_s`` when it is estimated)."""
+
+    @abstractmethod
+    def uncertainty(self) -> PolicySpread:
+        """The policy's current per-axis spreads."""
+
+    @abstractmethod
+    def param_groups(self) -> dict[str, list[torch.nn.Parameter]]:
+        """Parameters by role (the trainer steps each group by its own rule).
+
+        ``rotation_mean``, ``translation_mean``, optionally ``time_offset_mean`` (stepped in
+        proportion to their spread) and ``other`` (spreads, value head).
+        """

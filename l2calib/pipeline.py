@@ -188,7 +188,7 @@ def select_data(
 ) -> PreparedData:
     """Reads (or takes) sequences and selects segments, without references yet.
 
-    ``calibrate`` judges the selected data (:func:`l2calib.status.before_training`) before it
+    ``calibrate`` judges the selected data (:func:`l2calib.assess.status.before_training`) before it
     spends anything on a reference; :func:`add_references` completes the data.
     """
     say = stage or (lambda _msg: None)

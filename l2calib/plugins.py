@@ -53,6 +53,9 @@ class PluginSpec:
         config: Pydantic model of the plugin's options (``backend.options`` in a recipe).
         factory: ``factory(config, **context) -> instance``; imports heavy code lazily.
         description: One line shown by ``l2calib plugins``.
+        evaluation: Backends only: the options that make the backend the continuous odometry
+            ``l2calib evaluate`` runs with a given extrinsic (merged over the recipe's
+            ``backend.options``); empty: the recipe's options as they are.
     """
 
     name: str
@@ -60,6 +63,7 @@ class PluginSpec:
     config: type[BaseModel]
     factory: Callable[..., Any]
     description: str
+    evaluation: dict[str, Any] = field(default_factory=dict)
 
     def build(self, options: BaseModel | dict[str, Any] | None = None, **context: Any) -> Any:
         """Validates ``options`` against :attr:`config` and calls the factory."""

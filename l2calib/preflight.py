@@ -21,62 +21,19 @@ from l2calib.errors import DataError
 from l2calib.io.bag_reader import IMU_TYPE, LIDAR_TYPES, NAVSAT_TYPE, Bag, TopicInfo
 from l2calib.io.imu_reader import (
     ImuTopicReader,
-    ImuUnits,
     detect_units,
     rest_accel_norm,
     rest_gravity,
 )
-from l2calib.io.lidar_conventions import TimeConvention
 from l2calib.io.lidar_scans import LidarTopicReader
 from l2calib.io.navsat import STATUS_GBAS_FIX, NavSatTopicReader
 from l2calib.io.sequences import IMU_GAP_FACTOR, IMU_MIN_GAP_S, LIDAR_GAP_FACTOR, _track
-from l2calib.io.stamps import StampStats, stamp_stats
+from l2calib.io.stamps import stamp_stats
 from l2calib.preflight_checks import Issue, check_imu, check_lidar, check_pair
 from l2calib.preflight_motion import MotionReport, motion_check
+from l2calib.preflight_reports import ImuTopicReport, LidarTopicReport, NavSatTopicReport
 from l2calib.recipe import DataConfig, SelectionConfig
 from l2calib.time_offset_estimate import OffsetEstimate
-
-
-@dataclass
-class LidarTopicReport:
-    """Findings for one LiDAR topic (shares are of all points of all messages)."""
-
-    topic: str
-    msgtype: str
-    stamps: StampStats
-    layout: str = "unknown"
-    convention: TimeConvention | None = None
-    points_per_scan: float = 0.0
-    nan_share: float = 0.0
-    zero_share: float = 0.0
-    range_share: float = 0.0
-    empty_scans: int = 0
-    rel_time_s: tuple[float, float] = (float("nan"), float("nan"))
-    scan_duration_s: float = float("nan")
-    scan_stamps: tuple[int, int] = (0, 0)
-
-
-@dataclass
-class ImuTopicReport:
-    """Findings for one IMU topic (values after unit conversion)."""
-
-    topic: str
-    stamps: StampStats
-    units: ImuUnits | None = None
-    gravity_m_s2: float = float("nan")
-    gravity_at_rest: bool = False
-    mean_abs_gyro_rad_s: tuple[float, float, float] = (float("nan"),) * 3
-    max_gyro_rad_s: float = float("nan")
-
-
-@dataclass
-class NavSatTopicReport:
-    """Findings for one NavSatFix topic."""
-
-    topic: str
-    stamps: StampStats
-    fix_share: float = 0.0
-    rtk_share: float = 0.0
 
 
 @dataclass

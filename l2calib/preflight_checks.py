@@ -25,7 +25,7 @@ from l2calib.recipe import ImuInput
 
 if TYPE_CHECKING:
     from l2calib.io.stamps import StampStats
-    from l2calib.preflight import ImuTopicReport, LidarTopicReport
+    from l2calib.preflight_reports import ImuTopicReport, LidarTopicReport
 
 MIN_IMU_RATE_HZ = 100.0
 GRAVITY_TOL_M_S2 = 0.3

@@ -2,8 +2,8 @@
 
 :func:`motion_check` runs the recipe's data selection on the IMU samples and the LiDAR scan
 stamps that ``inspect`` has already read (no point is loaded) and applies the same rules as
-``calibrate``'s status (:func:`l2calib.status.data_shortfalls`): selected data shorter than half
-a selection window, or every IMU axis below the excitation thresholds, is too little to
+``calibrate``'s status (:func:`l2calib.assess.status.data_shortfalls`): selected data shorter
+than half a selection window, or every IMU axis below the excitation thresholds, is too little to
 calibrate. The warnings give the numbers: seconds of motion and selectable data against
 ``selection.window_s``, RMS rate and acceleration against the thresholds.
 """
@@ -72,8 +72,8 @@ def motion_check(
     Returns:
         ``(None, [])`` when the streams cannot be combined (the reading errors say why).
     """
+    from l2calib.assess.status import data_shortfalls
     from l2calib.selection.greedy import select_windows
-    from l2calib.status import data_shortfalls
 
     where_imu = f"{path}: {imu.topic}"
     try:

@@ -109,6 +109,16 @@ class ExtrinsicPrior(StrictModel):
     sigma_translation_m: float = Field(0.1, gt=0)
     sigma_rotation_deg: float = Field(10.0, gt=0)
 
+    def T_imu_lidar(self) -> Any:
+        """The guess as a homogeneous transform ``[4, 4]`` (numpy, float64, LiDAR → IMU)."""
+        import torch
+
+        from l2calib import geometry as geo
+
+        rpy = torch.deg2rad(torch.tensor(self.rpy_deg, dtype=torch.float64))
+        t = torch.tensor(self.translation_m, dtype=torch.float64)
+        return geo.make_transform(geo.euler_rpy_to_matrix(rpy), t).numpy()
+
 
 class PolicyChoice(PluginChoice):
     """The policy plugin, plus an optional prior (none = start from no initial guess)."""
@@ -172,7 +182,7 @@ class TrainConfig(StrictModel):
         6,
         ge=0,
         description="after PPO, climb the reward from the policy's mode with this many batched "
-        "probe rounds (13 evaluations each; l2calib.refine); 0: off",
+        "probe rounds (13 evaluations each; l2calib.assess.refine); 0: off",
     )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
@@ -182,6 +192,13 @@ class TrainConfig(StrictModel):
         "check, e.g. a run stuck in a local optimum; the highest reward is kept; 0: off",
     )
     refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
+
+    @property
+    def iteration_budget(self) -> int:
+        """PPO iterations at most: ``max_iterations``, capped by ``max_evaluations`` / K."""
+        return max(
+            1, min(self.max_iterations, self.max_evaluations // self.candidates_per_iteration)
+        )
 
 
 def _reference() -> ReferenceChoice:

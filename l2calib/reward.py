@@ -47,12 +47,18 @@ class RewardBreakdown:
     num_poses: Tensor
 
 
-def paper_reward(e_t: Tensor, e_r: Tensor, valid: Tensor | None = None) -> Tensor:
-    """``exp(-sqrt(Σe_t/(4N)) - sqrt(Σe_r/(π²N)))`` over the last dim (paper, Sec. III-C)."""
+def paper_reward(
+    e_t: Tensor, e_r: Tensor, valid: Tensor | None = None, valid_r: Tensor | None = None
+) -> Tensor:
+    """``exp(-sqrt(Σe_t/(4N)) - sqrt(Σe_r/(π²N)))`` over the last dim (paper, Sec. III-C).
+
+    ``valid`` masks the poses of both terms; ``valid_r``, when given, those of the rotation term
+    (a term over no pose is 0).
+    """
     w = torch.ones_like(e_t) if valid is None else valid.to(e_t.dtype)
-    n = w.sum(-1).clamp_min(1)
-    term_t = torch.sqrt((e_t * w).sum(-1) / (4 * n))
-    term_r = torch.sqrt((e_r * w).sum(-1) / (math.pi**2 * n))
+    w_r = w if valid_r is None else valid_r.to(e_r.dtype)
+    term_t = torch.sqrt((e_t * w).sum(-1) / (4 * w.sum(-1).clamp_min(1)))
+    term_r = torch.sqrt((e_r * w_r).sum(-1) / (math.pi**2 * w_r.sum(-1).clamp_min(1)))
     return torch.exp(-term_t - term_r)
 
 
@@ -124,10 +130,7 @@ def score(
     w = valid.to(e_t.dtype)
     n = w.sum(-1)
     if kind == "paper":
-        reward = torch.exp(
-            -torch.sqrt((e_t * w).sum(-1) / (4 * n.clamp_min(1)))
-            - torch.sqrt((e_r * valid_r).sum(-1) / (math.pi**2 * valid_r.sum(-1).clamp_min(1)))
-        )
+        reward = paper_reward(e_t, e_r, valid, valid_r)
     elif kind == "position":
         reward = position_reward(e_t, valid)
     else:

@@ -1,10 +1,11 @@
 """Training on prepared data: PPO attempts, each refined and probed, into a calibration result.
 
 :func:`train_policy` opens the training env once, runs PPO (restarting with another seed when
-the result disagrees with the reference, :mod:`l2calib.agreement`), refines the policy's mode on
-the reward (:mod:`l2calib.refine`), probes the reward around it (per-axis resolution,
-:mod:`l2calib.sensitivity`; the time offset's, :mod:`l2calib.time_offset_probe`) and returns the
-:class:`~l2calib.outputs.calibration_file.CalibrationResult`. The data comes from
+the result disagrees with the reference, :mod:`l2calib.assess.agreement`), refines the policy's
+mode on the reward (:mod:`l2calib.assess.refine`), probes the reward around it (per-axis
+resolution, :mod:`l2calib.assess.sensitivity`; the time offset's,
+:mod:`l2calib.assess.time_offset_probe`) and returns the
+:class:`~l2calib.assess.result.CalibrationResult`. The data comes from
 :mod:`l2calib.pipeline`.
 """
 
@@ -18,10 +19,10 @@ from typing import Any
 import numpy as np
 import torch
 
-from l2calib.agreement import disagreement_warnings, finite_or_none
+from l2calib.assess.agreement import disagreement_warnings, finite_or_none
+from l2calib.assess.result import CalibrationResult
 from l2calib.errors import TrainingError
 from l2calib.interrupt import Interrupted, stop_workers
-from l2calib.outputs.calibration_file import CalibrationResult
 from l2calib.pipeline import PreparedData, time_offset_bound_s
 from l2calib.recipe import Recipe
 
@@ -46,7 +47,7 @@ def undetermined_axes(
     trans_limit_m: float = 0.05,
 ) -> list[str]:
     """Axes the data could not determine: flat reward along them, or weak excitation."""
-    from l2calib.sensitivity import undetermined
+    from l2calib.assess.sensitivity import undetermined
 
     out = undetermined(resolution, rot_limit_deg, trans_limit_m)
     if selection is not None:
@@ -67,7 +68,7 @@ class _Scorer:
         self.last = None  # the latest call's RewardBreakdown (reward ingredients per candidate)
 
     def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
-        from l2calib.train.envs import score_batch
+        from l2calib.train.env_build import score_batch
 
         offsets = None
         if self.offset is not None:
@@ -91,18 +92,18 @@ def train_policy(
 ) -> tuple[CalibrationResult, Any]:
     """Builds env + policy from the recipe, runs PPO; returns the calibration and the outcome.
 
-    When the result fails the reference-agreement check (:mod:`l2calib.agreement`), PPO starts
-    again from scratch with another seed, up to ``train.restarts`` times, and the attempt with the
-    highest reward is kept: on weakly excited data a run can settle in a local optimum that the
-    reward itself ranks far below the truth. Restart ``k`` keeps its checkpoint and metrics in
-    ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's evaluations,
-    iterations and wall time count every attempt.
+    When the result fails the reference-agreement check (:mod:`l2calib.assess.agreement`), PPO
+    starts again from scratch with another seed, up to ``train.restarts`` times, and the attempt
+    with the highest reward is kept: on weakly excited data a run can settle in a local optimum
+    that the reward itself ranks far below the truth. Restart ``k`` keeps its checkpoint and
+    metrics in ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's
+    evaluations, iterations and wall time count every attempt.
 
     Raises:
         TrainingError: if ``resume`` is asked without an ``out_dir`` to resume from.
     """
     from l2calib.train.checkpoint import CHECKPOINT_NAME
-    from l2calib.train.envs import make_training_env
+    from l2calib.train.env_build import make_training_env
 
     if resume and out_dir is None:
         raise TrainingError(
@@ -236,17 +237,17 @@ def _attempt(
 
     ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user.
     """
-    from l2calib import sensitivity
+    from l2calib.assess import sensitivity
+    from l2calib.assess.refine import refine
+    from l2calib.assess.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.plugins import get_plugin
-    from l2calib.refine import refine
-    from l2calib.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
     from l2calib.train.ppo import PpoTrainer
 
     cfg = recipe.train.model_copy(update={"seed": seed})
     torch.manual_seed(seed)
     np.random.seed(seed)
-    action_dim = 8 if cfg.estimate_time_offset else 7
+    action_dim = int(env.action_spec.shape[-1])  # 8 with the time offset, else 7
     start = offset_start_s(cfg, data.time_offset_hint_s)
     policy = get_plugin("l2calib.policies", recipe.policy.name).build(
         recipe.policy.options,
@@ -267,8 +268,7 @@ def _attempt(
     say("training")
     outcome = trainer.run(progress)
     mode = policy.mode()
-    T_mode = torch.as_tensor(np.asarray(mode["T_imu_lidar"]), dtype=torch.float64)
-    offset = mode.get("time_offset_s") if cfg.estimate_time_offset else None
+    T_mode, offset = mode.T_imu_lidar.detach().clone(), mode.time_offset_s
     score = _Scorer(env, offset)
     refined = None
     if cfg.refine_rounds > 0:
@@ -298,9 +298,9 @@ def _attempt(
     return CalibrationResult(
         T_imu_lidar=T_mode.numpy(),
         time_offset_s=offset,
-        rotation_sigma_deg=[float(x) for x in unc["rotation_sigma_deg"]],
-        translation_sigma_m=[float(x) for x in unc["translation_sigma_m"]],
-        time_offset_sigma_s=unc.get("time_offset_sigma_s"),
+        rotation_sigma_deg=unc.rotation_sigma_deg.tolist(),
+        translation_sigma_m=unc.translation_sigma_m.tolist(),
+        time_offset_sigma_s=unc.time_offset_sigma_s,
         final_reward=resolution.reward,
         evaluations=outcome.evaluations
         + candidates.shape[0]

@@ -10,9 +10,10 @@ import torch
 import yaml
 
 from l2calib import geometry as geo
+from l2calib.assess.result import CalibrationResult
+from l2calib.assess.sensitivity import AxisResolution
 from l2calib.errors import DataError, NotCalibratedError
-from l2calib.outputs.calibration_file import CalibrationResult, read_extrinsic, write_calibration
-from l2calib.sensitivity import AxisResolution
+from l2calib.outputs.calibration_file import read_extrinsic, write_calibration
 
 
 def _T() -> np.ndarray:

@@ -2,8 +2,9 @@
 
 import yaml
 
-from l2calib.agreement import DISAGREEMENT_LIMITS, disagreement_warnings
-from l2calib.outputs.calibration_file import CalibrationResult, write_calibration
+from l2calib.assess.agreement import DISAGREEMENT_LIMITS, disagreement_warnings
+from l2calib.assess.result import CalibrationResult
+from l2calib.outputs.calibration_file import write_calibration
 
 
 def test_agreement_within_limits_gives_no_warning():

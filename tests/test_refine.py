@@ -6,7 +6,7 @@ import numpy as np
 import torch
 
 from l2calib import geometry as geo
-from l2calib.refine import refine
+from l2calib.assess.refine import refine
 
 T_OPT = geo.se3_exp(torch.tensor([[0.3, -0.1, 0.2, 0.4, -0.2, 1.0]], dtype=torch.float64))[0]
 

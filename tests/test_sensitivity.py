@@ -1,4 +1,4 @@
-"""The post-hoc per-axis resolution probe (l2calib.sensitivity)."""
+"""The post-hoc per-axis resolution probe (l2calib.assess.sensitivity)."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import numpy as np
 import torch
 
 from l2calib import geometry as geo
-from l2calib.sensitivity import (
+from l2calib.assess.sensitivity import (
     ROTATION_STEPS_DEG,
     TRANSLATION_STEPS_M,
     probe,

@@ -1,4 +1,4 @@
-"""l2calib.status: when a finished run is calibrated, unreliable or not calibrated."""
+"""l2calib.assess.status: when a finished run is calibrated, unreliable or not calibrated."""
 
 from __future__ import annotations
 
@@ -7,10 +7,10 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from l2calib.outputs.calibration_file import CalibrationResult
+from l2calib.assess.result import CalibrationResult
+from l2calib.assess.sensitivity import AxisResolution
+from l2calib.assess.status import assess, before_training, flat_axes
 from l2calib.recipe import SelectionConfig
-from l2calib.sensitivity import AxisResolution
-from l2calib.status import assess, before_training, flat_axes
 
 CFG = SelectionConfig(window_s=5.0, budget_s=10.0)
 

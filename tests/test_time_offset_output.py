@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 import yaml
 
-from l2calib.outputs.calibration_file import CalibrationResult, read_extrinsic, write_calibration
-from l2calib.time_offset_probe import OFFSET_STEPS_S, probe_offsets, resolve_offset
+from l2calib.assess.result import CalibrationResult
+from l2calib.assess.time_offset_probe import OFFSET_STEPS_S, probe_offsets, resolve_offset
+from l2calib.outputs.calibration_file import read_extrinsic, write_calibration
 
 
 def test_probe_ladder_resolves_a_peak_and_names_a_flat_reward():

@@ -4,7 +4,7 @@ A factor-graph counterpart of the ``iekf`` backend with the same interface and o
 candidate × window runs its own iSAM2 graph of ``CombinedImuFactor`` preintegrated IMU factors
 between scans and scan-to-map pose factors (:mod:`l2calib_backends.gtsam_lio`). Preparation
 (downsampled scans, reference start states, the shared plane map built from the reference) is
-the IEKF backend's, inherited unchanged, so both backends see the same data.
+the shared LIO base's (:mod:`l2calib_backends.lio_backend`), so both backends see the same data.
 
 Design choices:
 
@@ -27,30 +27,26 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-import torch
-
 from l2calib.recipe import ImuInput
 from l2calib_backends.gtsam_graph import GraphSettings
 from l2calib_backends.gtsam_lio import GtsamRunSettings, run_segment_gtsam
 from l2calib_backends.iekf import RunResult
-from l2calib_backends.iekf_backend import IekfBackend
+from l2calib_backends.lio_backend import LioBackend
+from l2calib_backends.options import GtsamOptions
 from l2calib_backends.propagation import ImuNoise
 from l2calib_backends.registration import RegistrationSettings
-from l2calib_backends.specs import GtsamOptions
 
 
-class GtsamBackend(IekfBackend):
+class GtsamBackend(LioBackend):
     """Batched GTSAM LIO (see :mod:`l2calib_backends.gtsam_lio`).
 
     Args:
-        config: Backend options (the fields shared with ``IekfOptions`` drive :meth:`prepare`).
+        config: Backend options.
         imu: IMU noise densities from the recipe (defaults of :class:`ImuInput` if ``None``).
     """
 
-    outputs_in_reference_frame = True  # every graph starts from the reference pose
-
     def __init__(self, config: GtsamOptions, imu: ImuInput | None = None, **_: object) -> None:
-        self.config = config
+        super().__init__(config)
         c = config
         self.settings = GtsamRunSettings(
             registration=RegistrationSettings(
@@ -60,7 +56,7 @@ class GtsamBackend(IekfBackend):
                 min_correspondences=c.min_correspondences,
             ),
             graph=GraphSettings(
-                init_sigmas=c.init_sigmas(),  # 'auto' resolved in prepare()
+                init_sigmas=self.init_sigmas,
                 relinearize_threshold=c.relinearize_threshold,
                 extra_iterations=c.extra_iterations,
                 huber_k=c.pose_huber_k,
@@ -72,14 +68,6 @@ class GtsamBackend(IekfBackend):
             plane_thickness_m=c.plane_thickness_m,
             smoothed_output=c.smoothed_output,
         )
-        self.init_sigmas = c.init_sigmas()
-        self.window_scans = c.window_scans
-        self._segments = []
-        self._motions = []
-        self._starts = []
-        self._map = None
-        if c.threads:
-            torch.set_num_threads(c.threads)
 
     def _use_init_sigmas(self, sigmas: dict[str, float]) -> None:
         """Start-state priors resolved at ``prepare`` (gravity is fixed here, not a state)."""

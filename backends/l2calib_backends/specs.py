@@ -1,102 +1,22 @@
-"""Plugin specs of the built-in backends (light: pydantic options + lazy factories)."""
+"""Plugin specs of the built-in backends (light: pydantic options + lazy factories).
+
+Options: :mod:`l2calib_backends.options`. ``evaluation`` (see :class:`~l2calib.plugins.PluginSpec`)
+turns a LIO backend into the continuous odometry ``l2calib evaluate`` runs: each candidate
+builds its own map from its own estimates (``map_mode: odometry``) over the whole recording
+(``window_scans: 0``), as FAST-LIO would with that extrinsic.
+"""
 
 from __future__ import annotations
 
-from typing import Annotated, Any, Literal
+from typing import Any
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict
 
 from l2calib.plugins import PluginSpec
+from l2calib_backends.options import GtsamOptions, IekfOptions
 
-AUTO_WINDOW_SCANS = 10  # window_scans "auto" on well-excited data
-# init sigmas "auto" (accel bias, gravity; m/s²): (weakly excited, well excited)
-AUTO_ACCEL_BIAS_SIGMA = (0.01, 0.1)
-AUTO_GRAVITY_SIGMA = (0.01, 0.1)
-Sigma = Annotated[float, Field(gt=0)] | Literal["auto"]
-
-
-def _auto(value: float | str, choices: tuple[float, float], weak: bool) -> float:
-    """A sigma option: the number given, or for ``auto`` ``choices[0 if weak else 1]``."""
-    return float(choices[0] if weak else choices[1]) if value == "auto" else float(value)
-
-
-class LioOptions(BaseModel):
-    """Options shared by the LiDAR-inertial backends (``iekf``, ``gtsam``)."""
-
-    model_config = ConfigDict(extra="forbid")
-
-    map_mode: Literal["shared-map", "odometry"] = Field(
-        "shared-map",
-        description="shared-map: one map built once from the reference trajectory, queried by "
-        "all candidates; odometry: each candidate builds its own map from its estimates, as "
-        "FAST-LIO does",
-    )
-    window_scans: Annotated[int, Field(ge=0)] | Literal["auto"] = Field(
-        "auto",
-        description="re-anchor the filters on the reference every this many scans (windows run "
-        "in parallel as extra batch entries); 0: one continuous run per segment, as FAST-LIO; "
-        f"auto: 0 on weakly excited data (mean gyro norm below weak_excitation_rate_rad_s), "
-        f"else {AUTO_WINDOW_SCANS}",
-    )
-    weak_excitation_rate_rad_s: float = Field(
-        0.5,
-        gt=0,
-        description="the 'auto' settings treat data whose mean |ω| (rad/s) is below this as "
-        "weakly excited",
-    )
-    map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
-    scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")
-    map_points_per_scan: int = Field(1500, ge=10, description="points inserted per scan (odometry)")
-    min_range_m: float = Field(1.0, ge=0)
-    max_range_m: float = Field(100.0, gt=0)
-    point_sigma_m: float = Field(0.05, gt=0, description="point-to-plane noise (m)")
-    plane_thickness_m: float = Field(0.05, gt=0, description="thickest voxel accepted as plane")
-    max_skipped_scans: int = Field(
-        3, ge=1, description="scans without update before a candidate counts as lost"
-    )
-    max_speed_m_s: float = Field(
-        1000.0, gt=0, description="faster than this counts as divergence (the run stops)"
-    )
-    init_sigma_rot_rad: float = Field(0.02, gt=0)
-    init_sigma_pos_m: float = Field(0.02, gt=0)
-    init_sigma_vel_m_s: float = Field(0.2, gt=0)
-    init_sigma_gyro_bias_rad_s: float = Field(0.01, gt=0)
-    init_sigma_accel_bias_m_s2: Sigma = Field(
-        "auto",
-        description=f"start-state accel-bias prior (m/s²); auto: {AUTO_ACCEL_BIAS_SIGMA[0]} on "
-        "weakly excited data, where the whole-segment gravity estimate absorbs the bias (the "
-        f"attitude barely changes), else {AUTO_ACCEL_BIAS_SIGMA[1]}",
-    )
-    threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
-    seed: int = 0
-
-    def init_sigmas(self, weak_excitation: bool = False) -> dict[str, float]:
-        """Prior standard deviations of each window's start state, by state block."""
-        return {
-            "rot": self.init_sigma_rot_rad,
-            "pos": self.init_sigma_pos_m,
-            "vel": self.init_sigma_vel_m_s,
-            "bg": self.init_sigma_gyro_bias_rad_s,
-            "ba": _auto(self.init_sigma_accel_bias_m_s2, AUTO_ACCEL_BIAS_SIGMA, weak_excitation),
-        }
-
-
-class IekfOptions(LioOptions):
-    """Options of the batched FAST-LIO2-style IEKF backend."""
-
-    points_per_scan: int = Field(250, ge=10, description="update points kept per scan")
-    max_iterations: int = Field(3, ge=1, le=10, description="iterated-update steps per scan")
-    min_correspondences: int = Field(20, ge=3)
-    init_sigma_gravity_m_s2: Sigma = Field(
-        "auto",
-        description=f"start-state gravity prior (m/s²); auto: {AUTO_GRAVITY_SIGMA[0]} on weakly "
-        f"excited data, else {AUTO_GRAVITY_SIGMA[1]}",
-    )
-
-    def init_sigmas(self, weak_excitation: bool = False) -> dict[str, float]:
-        """Prior standard deviations of the start state, gravity included."""
-        grav = _auto(self.init_sigma_gravity_m_s2, AUTO_GRAVITY_SIGMA, weak_excitation)
-        return dict(super().init_sigmas(weak_excitation), grav=grav)
+#: Options that make a LIO backend a continuous odometry with its own map (``evaluate``).
+CONTINUOUS_ODOMETRY = {"map_mode": "odometry", "window_scans": 0}
 
 
 def _make_iekf(config: IekfOptions, **context: Any) -> Any:
@@ -111,31 +31,8 @@ IEKF = PluginSpec(
     config=IekfOptions,
     factory=_make_iekf,
     description="Batched FAST-LIO2-style iterated ESKF LIO (torch), K candidates per call",
+    evaluation=CONTINUOUS_ODOMETRY,
 )
-
-
-class GtsamOptions(LioOptions):
-    """Options of the GTSAM IMU-preintegration LIO backend (iSAM2 graph per candidate)."""
-
-    points_per_scan: int = Field(400, ge=10, description="registered points kept per scan")
-    max_iterations: int = Field(4, ge=1, le=10, description="Gauss-Newton steps of a registration")
-    registration_info_scale: float = Field(
-        1.0,
-        gt=0,
-        le=1,
-        description="scales the registration's information HᵀWH (< 1 inflates its covariance)",
-    )
-    min_correspondences: int = Field(20, ge=6)
-    relinearize_threshold: float = Field(0.05, gt=0, description="iSAM2 relinearisation threshold")
-    extra_iterations: int = Field(0, ge=0, le=5, description="extra iSAM2 updates per scan")
-    pose_huber_k: float = Field(
-        0.0, ge=0, description="Huber threshold (sigmas) on registered-pose factors; 0: off"
-    )
-    smoothed_output: bool = Field(
-        False,
-        description="report each window's final smoothed poses instead of the estimate of each "
-        "scan when it arrived (filtered, as the IEKF and the paper's LIO)",
-    )
 
 
 def _make_gtsam(config: GtsamOptions, **context: Any) -> Any:
@@ -150,6 +47,7 @@ GTSAM = PluginSpec(
     config=GtsamOptions,
     factory=_make_gtsam,
     description="GTSAM LIO: CombinedImuFactor preintegration + scan-to-map pose factors, iSAM2",
+    evaluation=CONTINUOUS_ODOMETRY,
 )
 
 

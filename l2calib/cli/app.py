@@ -3,7 +3,7 @@
 Known errors (:class:`l2calib.errors.L2CalibError`) print one line
 ``error: <what> — fix: <how>`` and exit with status 1; an interrupted run
 (:mod:`l2calib.interrupt`) says where to resume and exits with 130 (SIGINT) or 143 (SIGTERM).
-``calibrate`` exits with 3 when the data could not calibrate (:mod:`l2calib.status`).
+``calibrate`` exits with 3 when the data could not calibrate (:mod:`l2calib.assess.status`).
 """
 
 from __future__ import annotations

@@ -6,11 +6,9 @@ from pathlib import Path
 
 import typer
 
-from l2calib.status import EXIT_NOT_CALIBRATED, NOT_CALIBRATED, UNRELIABLE
+from l2calib.assess.status import EXIT_NOT_CALIBRATED, NOT_CALIBRATED, UNRELIABLE
 
 _SET_HELP = "Override a recipe field, e.g. --set train.seed=3 (repeatable)."
-#: ``training.stop_reason`` of a run that stopped before training.
-STOPPED_BEFORE_TRAINING = "stopped before training: the data is too short or too still"
 
 
 def run_calibration(
@@ -23,100 +21,34 @@ def run_calibration(
     truth=None,
     console=None,
 ):
-    """Runs the whole calibration with a live display and writes the output directory.
+    """Runs a :class:`~l2calib.calibration.Calibration` with the live display and prints it.
 
-    Data clearly too short or too still to calibrate (:func:`l2calib.status.before_training`)
+    Data clearly too short or too still to calibrate (:func:`l2calib.assess.status.before_training`)
     stops the run before the reference and the training: ``calibration.yaml`` then holds the
     ``not-calibrated`` status, the reasons and a data summary, and no extrinsic.
 
     Returns:
-        The :class:`~l2calib.outputs.calibration_file.CalibrationResult` (its ``T_imu_lidar``
+        The :class:`~l2calib.assess.result.CalibrationResult` (its ``T_imu_lidar``
         is ``None`` when the run stopped before training).
     """
     import numpy as np
     from rich.console import Console
 
+    from l2calib.calibration import Calibration, RunHooks
     from l2calib.cli.live import CalibrationDisplay
-    from l2calib.outputs.data_summary import data_summary
-    from l2calib.outputs.writer import prepare_out_dir, write_outputs
-    from l2calib.pipeline import add_references, select_data
-    from l2calib.status import assess, before_training
-    from l2calib.training import train_policy
 
     console = console or Console()
-    out = prepare_out_dir(out, resume, force)
-    iterations = max(
-        1,
-        min(
-            recipe.train.max_iterations,
-            recipe.train.max_evaluations // recipe.train.candidates_per_iteration,
-        ),
-    )
-    with CalibrationDisplay(console, iterations) as display:
-        data = select_data(recipe, bags=bags, sequences=sequences, stage=display.stage)
-        _show_data(display, data)
-        verdict = before_training(data, recipe.selection)
-        if verdict.status == NOT_CALIBRATED:
-            display.skip_training()
-        else:
-            add_references(recipe, data, stage=display.stage)
-            for note in data.notes:
-                display.stage(f"[yellow]note[/]: {note}")
-            result, outcome = train_policy(
-                recipe, data, out, resume=resume, progress=display.update, stage=display.stage
-            )
-    if verdict.status == NOT_CALIBRATED:
-        return _stop_before_training(console, out, recipe, data, verdict)
-    before = None
-    prior = recipe.policy.prior
-    if prior is not None:
-        import torch
-
-        from l2calib import geometry as geo
-
-        R = geo.euler_rpy_to_matrix(torch.deg2rad(torch.tensor(prior.rpy_deg, dtype=torch.float64)))
-        before = geo.make_transform(R, torch.tensor(prior.translation_m)).numpy()
-    verdict = assess(result, data, recipe.selection)
-    result.status, result.status_reasons = verdict.status, verdict.reasons
-    result.extra["data"] = data_summary(data, recipe.selection)
-    console.print("[cyan]•[/] writing the report")
-    paths = write_outputs(out, recipe, result, outcome.history, data, truth=truth, before=before)
-    print_result(console, result, truth=None if truth is None else np.asarray(truth))
-    console.print(f"results in [bold]{out}[/]: {', '.join(p.name for p in paths.values())}")
-    print_status(console, result)
-    return result
-
-
-def _show_data(display, data) -> None:
-    """Prints the reading warnings, the selection's notes and how much data was selected."""
-    for seq in data.sequences:
-        for warning in seq.meta.get("warnings", []):
-            display.stage(f"[yellow]warning[/]: {warning}")
-    for note in data.selection.notes if data.selection is not None else []:
-        display.stage(f"[yellow]note[/]: {note}")
-    total = sum(s.duration_s for s in data.segments)
-    display.stage(f"{len(data.segments)} segment(s), {total:.1f} s of data")
-
-
-def _stop_before_training(console, out: Path, recipe, data, verdict):
-    """Writes and prints the ``not-calibrated`` outcome of data too poor to train on.
-
-    Returns:
-        The :class:`~l2calib.outputs.calibration_file.CalibrationResult`, without an extrinsic.
-    """
-    from l2calib.outputs.calibration_file import CalibrationResult
-    from l2calib.outputs.data_summary import data_summary
-    from l2calib.outputs.writer import write_stopped_outputs
-
-    result = CalibrationResult(
-        None,
-        stop_reason=STOPPED_BEFORE_TRAINING,
-        status=verdict.status,
-        status_reasons=verdict.reasons,
-        extra={"data": data_summary(data, recipe.selection)},
-    )
-    paths = write_stopped_outputs(out, recipe, result, data)
-    console.print(f"results in [bold]{out}[/]: {', '.join(p.name for p in paths.values())}")
+    run = Calibration(recipe, out, resume=resume, force=force)  # checks --out before any work
+    with CalibrationDisplay(console, recipe.train.iteration_budget) as display:
+        run.hooks = RunHooks(display.stage, display.update, display.skip_training)
+        run.prepare(bags=bags, sequences=sequences)
+        if not run.stopped:
+            run.train()
+    result = run.assess()
+    paths = run.write(truth)
+    if not run.stopped:
+        print_result(console, result, truth=None if truth is None else np.asarray(truth))
+    console.print(f"results in [bold]{run.out}[/]: {', '.join(p.name for p in paths.values())}")
     print_status(console, result)
     return result
 
@@ -153,7 +85,7 @@ def print_result(console, result, truth=None) -> None:
     from rich.table import Table
 
     from l2calib import geometry as geo
-    from l2calib.outputs.calibration_file import CalibrationResult
+    from l2calib.assess.result import CalibrationResult
 
     table = Table(title="T_imu_lidar (LiDAR → IMU)", title_justify="left")
     table.add_column("")

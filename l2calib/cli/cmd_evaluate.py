@@ -10,7 +10,10 @@ _SET_HELP = "Override a recipe field, e.g. --set data.imu.topic=/imu (repeatable
 
 
 def evaluate_extrinsics(recipe, sequences, extrinsics: dict[str, tuple]):
-    """Runs a continuous LIO (own map, no re-anchoring) with each extrinsic on every sequence.
+    """Runs the backend's evaluation mode with each extrinsic on every sequence.
+
+    For the LIO backends that is a continuous odometry with its own map and no re-anchoring
+    (the spec's ``evaluation`` options, :class:`~l2calib.plugins.PluginSpec`).
 
     Args:
         recipe: Recipe (topics, reference, backend options).
@@ -31,10 +34,8 @@ def evaluate_extrinsics(recipe, sequences, extrinsics: dict[str, tuple]):
     segments = [seq.segment() for seq in sequences]
     references = compute_references(recipe, segments, sequences)
     segments = kept_segments(segments, references)
-    options = {**recipe.backend.options, "map_mode": "odometry", "window_scans": 0}
-    backend = get_plugin("l2calib.backends", recipe.backend.name).build(
-        options, imu=recipe.data.imu
-    )
+    spec = get_plugin("l2calib.backends", recipe.backend.name)
+    backend = spec.build({**recipe.backend.options, **spec.evaluation}, imu=recipe.data.imu)
     backend.prepare(segments, references)
     labels = list(extrinsics)
     T = torch.from_numpy(np.stack([extrinsics[k][0] for k in labels]))

@@ -15,8 +15,8 @@ import torch
 import yaml
 
 from l2calib import geometry as geo
+from l2calib.assess.status import NOT_CALIBRATED
 from l2calib.errors import DataError, NotCalibratedError
-from l2calib.status import NOT_CALIBRATED
 
 
 def read_extrinsic(path: str | Path) -> tuple[np.ndarray, float | None]:

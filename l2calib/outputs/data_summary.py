@@ -1,6 +1,6 @@
 """``calibration.yaml`` → ``data``: what the calibration had to work with.
 
-The numbers the status rules (:mod:`l2calib.status`) judge: the LiDAR-IMU overlap of each
+The numbers the status rules (:mod:`l2calib.assess.status`) judge: the LiDAR-IMU overlap of each
 recording, the seconds selected against ``selection.window_s``, and the RMS excitation of the
 selected data against the selection's thresholds. Written with every result, and the main
 content of a file whose calibration stopped before training.

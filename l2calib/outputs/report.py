@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from l2calib.outputs.calibration_file import CalibrationResult
+from l2calib.assess.result import CalibrationResult
 
 COLORS = ("tab:red", "tab:green", "tab:blue")
 
@@ -39,7 +39,7 @@ def plot_report(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from l2calib.outputs.calibration_file import CalibrationResult as _CR
+    from l2calib.assess.result import CalibrationResult as _CR
 
     it = np.array([h.iteration for h in history])
     fig, ax = plt.subplots(2, 2, figsize=(12, 8.5))

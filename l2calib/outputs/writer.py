@@ -12,8 +12,9 @@ from typing import Any
 import numpy as np
 import torch
 
+from l2calib.assess.result import CalibrationResult
 from l2calib.errors import ConfigError, OutputError
-from l2calib.outputs.calibration_file import CalibrationResult, write_calibration
+from l2calib.outputs.calibration_file import write_calibration
 from l2calib.outputs.report import plot_report, write_html
 from l2calib.outputs.writable import check_writable
 from l2calib.recipe import Recipe, dump_recipe
@@ -72,8 +73,8 @@ def _refuse_to_resume_a_stopped_run(out: Path) -> None:
     Raises:
         ConfigError: if ``out/calibration.yaml`` says ``not-calibrated`` with no checkpoint.
     """
+    from l2calib.assess.status import NOT_CALIBRATED
     from l2calib.outputs.calibration_read import read_status
-    from l2calib.status import NOT_CALIBRATED
 
     path = out / "calibration.yaml"
     if not path.is_file() or read_status(path) != NOT_CALIBRATED:
@@ -126,7 +127,7 @@ def write_metrics_csv(path: Path, history: list[Any]) -> Path:
 
 def trajectory_preview(recipe: Recipe, data, T_before: np.ndarray, T_after: np.ndarray):
     """LiDAR positions of the first segment with two extrinsics, beside the reference."""
-    from l2calib.train.envs import build_backend
+    from l2calib.train.env_build import build_backend
 
     seg, ref = data.segments[:1], data.references[:1]
     backend = build_backend(recipe, seg, ref)

@@ -21,7 +21,8 @@ from l2calib.sim.lidar_models import LidarSpec, get_lidar
 from l2calib.sim.motion import Motion
 from l2calib.sim.profiles import build_motion, profile_params
 from l2calib.sim.rigs import extrinsic_matrix
-from l2calib.sim.world import World, make_world
+from l2calib.sim.scenes import make_world
+from l2calib.sim.world import World
 from l2calib.trajectory import Trajectory
 
 __all__ = ["SimConfig", "SimRun", "simulate"]

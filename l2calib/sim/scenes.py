@@ -1,7 +1,8 @@
 """Procedural scene builders: open3d primitives assembled into each world's mesh.
 
-Each builder adds its structures to a :class:`MeshBuilder` and returns the world's
-:class:`~l2calib.sim.world.Route` (centre line and free space around it, clearance included).
+:func:`make_world` builds a world by name. Each builder adds its structures to a
+:class:`MeshBuilder` and returns the world's :class:`~l2calib.sim.world.Route` (centre line and
+free space around it, clearance included).
 """
 
 from __future__ import annotations
@@ -10,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from l2calib.sim.world import Route, World
+from l2calib.errors import ConfigError
+from l2calib.sim.world import WORLD_NAMES, Route, World
 
 
 class MeshBuilder:
@@ -271,3 +273,17 @@ def _open_field(rng: np.random.Generator, b: MeshBuilder) -> Route:
 
 
 BUILDERS = {"urban": _urban, "hall": _hall, "corridor": _corridor, "open-field": _open_field}
+
+
+def make_world(name: str, seed: int = 0, clearance_m: float = 0.4) -> World:
+    """Builds the named world from ``seed`` (same name and seed give the same mesh).
+
+    Raises:
+        ConfigError: if ``name`` is not one of :data:`WORLD_NAMES`.
+    """
+    if name not in BUILDERS:
+        raise ConfigError(f"unknown world {name!r}", fix=f"choose one of: {', '.join(WORLD_NAMES)}")
+    rng = np.random.default_rng([seed, 17])
+    builder = MeshBuilder()
+    route = BUILDERS[name](rng, builder)
+    return builder.build(name, seed, route, clearance_m)

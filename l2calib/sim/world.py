@@ -21,8 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from l2calib.errors import ConfigError
-
 WORLD_NAMES = ("urban", "hall", "corridor", "open-field")
 
 
@@ -144,19 +142,3 @@ class World:
 
         q = o3d.core.Tensor(np.asarray(points, dtype=np.float32))
         return self.scene.compute_distance(q).numpy().astype(np.float64)
-
-
-def make_world(name: str, seed: int = 0, clearance_m: float = 0.4) -> World:
-    """Builds the named world from ``seed`` (same name and seed give the same mesh).
-
-    Raises:
-        ConfigError: if ``name`` is not one of :data:`WORLD_NAMES`.
-    """
-    from l2calib.sim.scenes import BUILDERS, MeshBuilder
-
-    if name not in BUILDERS:
-        raise ConfigError(f"unknown world {name!r}", fix=f"choose one of: {', '.join(WORLD_NAMES)}")
-    rng = np.random.default_rng([seed, 17])
-    builder = MeshBuilder()
-    route = BUILDERS[name](rng, builder)
-    return builder.build(name, seed, route, clearance_m)

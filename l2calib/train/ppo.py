@@ -72,10 +72,9 @@ class TrainOutcome:
 
 def _mode_summary(policy) -> tuple[list[float], list[float], float | None]:
     mode = policy.mode()
-    T = torch.as_tensor(mode["T_imu_lidar"], dtype=torch.float64)
+    T = mode.T_imu_lidar
     rpy = torch.rad2deg(geo.matrix_to_euler_rpy(T[:3, :3])).tolist()
-    off = mode.get("time_offset_s")
-    return T[:3, 3].tolist(), rpy, (float(off) if off is not None else None)
+    return T[:3, 3].tolist(), rpy, mode.time_offset_s
 
 
 def _converged(history: list[IterationRecord], cfg: TrainConfig) -> bool:
@@ -100,7 +99,7 @@ class PpoTrainer:
     """Trains a policy plugin's actor/value on a calibration environment.
 
     Args:
-        policy: A policy plugin object (``.actor``, ``.value``, ``.mode()``, ``.uncertainty()``).
+        policy: A :class:`~l2calib.interfaces.CalibrationPolicy` (built by a policy plugin).
         env: The environment (``CalibrationEnv`` or a ``ParallelEnv`` of them).
         cfg: PPO settings and budgets.
         out_dir: Where checkpoints and metrics go (``None``: nowhere).
@@ -116,7 +115,7 @@ class PpoTrainer:
         self.out_dir = out_dir
         self.fingerprint = fingerprint
         self.K = cfg.candidates_per_iteration
-        self.iterations = max(1, min(cfg.max_iterations, cfg.max_evaluations // self.K))
+        self.iterations = cfg.iteration_budget
         self.loss = ClipPPOLoss(
             policy.actor,
             policy.value,
@@ -166,11 +165,11 @@ class PpoTrainer:
             return
         unc = self.policy.uncertainty()
         sigma = {
-            "rotation_mean": min(float(torch.as_tensor(unc["rotation_sigma_rad"]).mean()), 1.0),
-            "translation_mean": float(torch.as_tensor(unc["translation_sigma_m"]).mean()),
+            "rotation_mean": min(float(unc.rotation_sigma_rad.mean()), 1.0),
+            "translation_mean": float(unc.translation_sigma_m.mean()),
         }
-        if "time_offset_sigma_s" in unc:  # s, its own scale (not the translation's metres)
-            sigma["time_offset_mean"] = float(unc["time_offset_sigma_s"])
+        if unc.time_offset_sigma_s is not None:  # s, its own scale (not the translation's m)
+            sigma["time_offset_mean"] = unc.time_offset_sigma_s
         for group in self.optim.param_groups:
             if group["role"] in sigma:
                 group["lr"] = self.cfg.mean_step_scale * sigma[group["role"]] * factor
@@ -322,8 +321,8 @@ class PpoTrainer:
             translation_m=t,
             rpy_deg=rpy,
             time_offset_s=off,
-            rotation_sigma_deg=[float(x) for x in unc["rotation_sigma_deg"]],
-            translation_sigma_m=[float(x) for x in unc["translation_sigma_m"]],
+            rotation_sigma_deg=unc.rotation_sigma_deg.tolist(),
+            translation_sigma_m=unc.translation_sigma_m.tolist(),
             lr=float(self.optim.param_groups[-1]["lr"]),
             **losses,
         )

@@ -11,7 +11,7 @@ TensorDict keys (float64 throughout):
 * out: ``"action"`` ``[..., 7|8]`` = ``[qx, qy, qz, qw, tx, ty, tz(, dt)]`` (unit quaternion of
   ``R_imu_lidar``, ``t_imu_lidar`` in m, ``time_offset_s``), ``"action_log_prob"`` ``[...]``
   (TorchRL's default key for a single ``"action"`` out key; ``ClipPPOLoss`` reads it from
-  ``actor.log_prob_keys``), and ``"state_value"`` ``[..., 1]`` from :attr:`CalibrationPolicy.value`.
+  ``actor.log_prob_keys``), and ``"state_value"`` ``[..., 1]`` from :attr:`ExtrinsicPolicy.value`.
 
 Sample with ``set_exploration_type(ExplorationType.RANDOM)`` (what TorchRL collectors do);
 the default (deterministic) interaction returns the mode.
@@ -50,6 +50,7 @@ from l2calib.geometry import (
     quat_normalize,
     transform_from_quat,
 )
+from l2calib.interfaces import CalibrationPolicy, Extrinsic, PolicySpread
 from l2calib.recipe import ExtrinsicPrior
 from l2calib_policies.joint import BinghamExtrinsic, GaussianExtrinsic
 
@@ -199,8 +200,10 @@ _KEYS = {
 _DISTRIBUTIONS = {"bingham": BinghamExtrinsic, "gaussian": GaussianExtrinsic}
 
 
-class CalibrationPolicy(nn.Module):
+class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
     """Actor (``ProbabilisticActor``) and value module of one calibration run.
+
+    The built-in implementation of :class:`l2calib.interfaces.CalibrationPolicy`.
 
     Args:
         kind: ``"bingham"`` or ``"gaussian"``.
@@ -336,39 +339,15 @@ class CalibrationPolicy(nn.Module):
         return self.actor.get_dist(self.observation())
 
     @torch.no_grad()
-    def mode(self) -> dict[str, Any]:
-        """Most likely extrinsic (the distribution's mode).
-
-        Returns:
-            ``T_imu_lidar`` ``[4, 4]`` float64, ``quat_xyzw`` ``[4]``, ``t_imu_lidar`` ``[3]`` (m)
-            and, with a time offset, ``time_offset_s`` (float).
-        """
+    def mode(self) -> Extrinsic:
+        """Most likely extrinsic (the distribution's mode), with the time offset when estimated."""
         a = self.distribution().mode
-        out: dict[str, Any] = {
-            "T_imu_lidar": transform_from_quat(a[:4], a[4:7]),
-            "quat_xyzw": a[:4].clone(),
-            "t_imu_lidar": a[4:7].clone(),
-        }
-        if self.time_offset:
-            out["time_offset_s"] = float(a[7])
-        return out
+        offset = float(a[7]) if self.time_offset else None
+        return Extrinsic(transform_from_quat(a[:4], a[4:7]), offset)
 
     @torch.no_grad()
-    def uncertainty(self) -> dict[str, Any]:
-        """Per-axis spreads of the current policy.
-
-        Returns:
-            ``rotation_sigma_rad`` / ``rotation_sigma_deg`` ``[3]`` (about the body axes of the
-            mode, i.e. LiDAR axes), ``translation_sigma_m`` ``[3]`` and, with a time offset,
-            ``time_offset_sigma_s`` (float).
-        """
+    def uncertainty(self) -> PolicySpread:
+        """Per-axis spreads of the current policy (rotation about the mode's, i.e. LiDAR, axes)."""
         dist = self.distribution()
-        rot = dist.rotation_sigma_rad()
-        out: dict[str, Any] = {
-            "rotation_sigma_rad": rot,
-            "rotation_sigma_deg": torch.rad2deg(rot),
-            "translation_sigma_m": dist.scale[:3].clone(),
-        }
-        if self.time_offset:
-            out["time_offset_sigma_s"] = float(dist.scale[3])
-        return out
+        offset = float(dist.scale[3]) if self.time_offset else None
+        return PolicySpread(dist.rotation_sigma_rad(), dist.scale[:3].clone(), offset)

@@ -2,7 +2,7 @@
 
 Entry-point group ``l2calib.policies``: ``bingham`` (L2Calib) and ``gaussian`` (L2Calib-g).
 ``spec.build(options, action_dim=7|8, prior=ExtrinsicPrior|None, seed=int)`` returns a
-:class:`l2calib_policies.actors.CalibrationPolicy`.
+:class:`l2calib_policies.actors.ExtrinsicPolicy`.
 """
 
 from __future__ import annotations
@@ -81,9 +81,9 @@ class GaussianOptions(_PolicyOptions):
 
 
 def _build(kind: str, config: BaseModel, **context: Any) -> Any:
-    from l2calib_policies.actors import CalibrationPolicy
+    from l2calib_policies.actors import ExtrinsicPolicy
 
-    return CalibrationPolicy(kind, config, **context)
+    return ExtrinsicPolicy(kind, config, **context)
 
 
 def _build_bingham(config: BinghamOptions, **context: Any) -> Any:

@@ -2,7 +2,7 @@
 
 No odometry: the reward of a candidate ``(q, t)`` is
 ``exp(-θ(q, q*)/θ0 - |t - t*|/d0)`` with ``θ`` the geodesic rotation angle. :class:`ToyEnv`
-has the calibration environment's specs (it shares :class:`l2calib.env.ScoringEnv`), and
+has the calibration environment's specs (it shares :class:`l2calib.train.env.ScoringEnv`), and
 :func:`run_toy_ppo` trains a policy plugin on it with the production
 :class:`l2calib.train.ppo.PpoTrainer` (TorchRL collector, ``ClipPPOLoss``, the same learning-rate
 rules), so there is one training loop in the project. It is the acceptance test of the policies.
@@ -16,10 +16,10 @@ from dataclasses import dataclass, field
 import torch
 from torch import Tensor
 
-from l2calib.env import ScoringEnv
 from l2calib.geometry import quat_to_matrix, rotation_angle
 from l2calib.plugins import get_plugin
 from l2calib.reward import RewardBreakdown
+from l2calib.train.env import ScoringEnv
 
 
 def toy_reward(
@@ -116,7 +116,7 @@ def run_toy_ppo(
     out = ToyResult()
 
     def record(rec) -> None:
-        T = torch.as_tensor(policy.mode()["T_imu_lidar"], dtype=torch.float64)
+        T = policy.mode().T_imu_lidar
         theta, dist = _errors(T[:3, :3], T[:3, 3], q_star, t_star)
         out.rotation_error_deg.append(math.degrees(float(theta)))
         out.translation_error_m.append(float(dist))

@@ -11,9 +11,9 @@ from l2calib.interfaces import CandidateStatus, ReferenceTrajectory
 from l2calib.plugins import get_plugin
 from l2calib.reward import trajectory_reward
 from l2calib_backends.gtsam_graph import ScanGraph, imu_intervals, imu_params
-from l2calib_backends.iekf_backend import build_reference_map
 from l2calib_backends.prepare import prepare_segment
 from l2calib_backends.propagation import ImuNoise, ImuTensors
+from l2calib_backends.reference_map import build_reference_map
 from l2calib_backends.registration import RegistrationSettings, register_scans
 
 F64 = torch.float64

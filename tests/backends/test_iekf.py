@@ -147,8 +147,8 @@ def test_vio_placeholder_fails_loudly():
 def test_auto_window_follows_rotation_rate(rate, expected):
     from types import SimpleNamespace
 
-    from l2calib_backends.iekf_backend import resolve_window_scans
-    from l2calib_backends.specs import IekfOptions
+    from l2calib_backends.lio_backend import resolve_window_scans
+    from l2calib_backends.options import IekfOptions
 
     gyro = torch.zeros(400, 3, dtype=torch.float64)
     gyro[:, 2] = rate

@@ -101,37 +101,35 @@ def test_init_from_prior_and_readouts(name):
     )
     policy = build(name, action_dim=8, prior=prior)
     mode = policy.mode()
-    T = mode["T_imu_lidar"]
+    T = mode.T_imu_lidar
     assert T.shape == (4, 4) and T.dtype == F64
     R_prior = euler_rpy_to_matrix(torch.deg2rad(torch.tensor(prior.rpy_deg, dtype=F64)))
     assert rotation_angle(R_prior.T @ T[:3, :3]).item() < 1e-9
     assert torch.allclose(T[:3, 3], torch.tensor(prior.translation_m, dtype=F64))
-    assert mode["time_offset_s"] == 0.0
+    assert mode.time_offset_s == 0.0
     unc = policy.uncertainty()
-    assert torch.allclose(unc["rotation_sigma_deg"], torch.full((3,), 4.0, dtype=F64), rtol=0.03)
-    assert torch.allclose(unc["rotation_sigma_rad"], torch.deg2rad(unc["rotation_sigma_deg"]))
-    assert torch.allclose(unc["translation_sigma_m"], torch.full((3,), 0.05, dtype=F64))
-    assert unc["time_offset_sigma_s"] == pytest.approx(0.02)
+    assert torch.allclose(unc.rotation_sigma_deg, torch.full((3,), 4.0, dtype=F64), rtol=0.03)
+    assert torch.allclose(unc.rotation_sigma_rad, torch.deg2rad(unc.rotation_sigma_deg))
+    assert torch.allclose(unc.translation_sigma_m, torch.full((3,), 0.05, dtype=F64))
+    assert unc.time_offset_sigma_s == pytest.approx(0.02)
     # Samples spread as the readout says (rotation about body axes).
     td = sample(policy, 20_000)
     dist = policy.distribution()
     y = dist.rotation.body_coordinates(td["action"][:, :4]) if name == "bingham" else None
     if y is not None:
-        assert torch.allclose(
-            2 * (y[:, :3] ** 2).mean(0).sqrt(), unc["rotation_sigma_rad"], rtol=0.03
-        )
+        assert torch.allclose(2 * (y[:, :3] ** 2).mean(0).sqrt(), unc.rotation_sigma_rad, rtol=0.03)
 
 
 def test_no_idea_init_is_uniform_rotation_and_wide_translation():
     policy = build("bingham")
     unc = policy.uncertainty()
     # Uniform on S³: E[y_i²] = 1/4, so 2·sqrt(E[y_i²]) = 1 rad on every axis.
-    assert torch.allclose(unc["rotation_sigma_rad"], torch.ones(3, dtype=F64), rtol=1e-3)
-    assert torch.allclose(unc["translation_sigma_m"], torch.full((3,), 0.5, dtype=F64))
+    assert torch.allclose(unc.rotation_sigma_rad, torch.ones(3, dtype=F64), rtol=1e-3)
+    assert torch.allclose(unc.translation_sigma_m, torch.full((3,), 0.5, dtype=F64))
     z = policy.distribution().rotation.concentration
     assert bool((z == 0).all())  # exactly uniform
-    assert policy.mode()["T_imu_lidar"].shape == (4, 4)
-    g = build("gaussian").uncertainty()["rotation_sigma_deg"]
+    assert policy.mode().T_imu_lidar.shape == (4, 4)
+    g = build("gaussian").uncertainty().rotation_sigma_deg
     assert bool((g > 40).all()) and bool((g < 80).all())
 
 
@@ -170,11 +168,11 @@ def test_translation_bound_and_separate_floors():
     assert torch.allclose(d.scale, torch.full((3,), 0.01, dtype=F64), rtol=1e-6)
     # The rotation is untouched by the translation floor/bound, and has its own floor.
     assert torch.allclose(
-        policy.uncertainty()["rotation_sigma_rad"], torch.ones(3, dtype=F64), rtol=1e-3
+        policy.uncertainty().rotation_sigma_rad, torch.ones(3, dtype=F64), rtol=1e-3
     )
     with torch.no_grad():
         net.conc_raw.fill_(1e3)  # far beyond the rotation floor
-    sigma = policy.uncertainty()["rotation_sigma_deg"]
+    sigma = policy.uncertainty().rotation_sigma_deg
     assert torch.allclose(sigma, torch.ones(3, dtype=F64), rtol=1e-3)
 
 
@@ -199,14 +197,14 @@ def test_state_dict_round_trip():
         a.params_net.quat_raw.copy_(torch.tensor([0.1, 0.2, 0.3, 0.9], dtype=F64))
     b = build("bingham", action_dim=8)
     b.load_state_dict(a.state_dict())
-    assert torch.allclose(a.mode()["T_imu_lidar"], b.mode()["T_imu_lidar"])
+    assert torch.allclose(a.mode().T_imu_lidar, b.mode().T_imu_lidar)
     assert math.isfinite(float(b.distribution().entropy().detach()))
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_time_offset_starts_where_the_reference_measured_it(name):
     policy = build(name, action_dim=8, init_time_offset_s=0.05)
-    assert policy.mode()["time_offset_s"] == pytest.approx(0.05, abs=1e-12)
+    assert policy.mode().time_offset_s == pytest.approx(0.05, abs=1e-12)
     offsets = sample(policy, 4000)["action"][:, 7]
     assert float(offsets.mean()) == pytest.approx(0.05, abs=0.002)  # σ0 = 20 ms: ±3σ/√n
     with pytest.raises(ConfigError, match="outside the bound"):

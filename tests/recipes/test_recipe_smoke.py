@@ -9,8 +9,8 @@ from __future__ import annotations
 import pytest
 import yaml
 
+from l2calib.assess.sensitivity import probe
 from l2calib.recipe import builtin_recipes, load_recipe
-from l2calib.sensitivity import probe
 
 #: recipe -> (simulated LiDAR model, IMU model, motion profile)
 LAYOUTS = {
@@ -82,7 +82,8 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     assert out["refine"]["refined_reward"] >= out["refine"]["policy_mode_reward"]
     assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
     assert len(out["T_imu_lidar"]) == 4
-    # 2 iterations may leave most axes flat: then no paste-ready block is written (l2calib.status)
+    # 2 iterations may leave most axes flat: then no paste-ready block is written
+    # (l2calib.assess.status)
     if out["status"] == "not-calibrated":
         assert "fast_lio" not in out and out["status_reasons"]
     else:

@@ -7,9 +7,10 @@ import pytest
 
 from l2calib.errors import ConfigError
 from l2calib.sim.profiles import build_motion, profile_params
+from l2calib.sim.scenes import make_world
 from l2calib.sim.signals import ActivityWindow
 from l2calib.sim.sweep import check_clearance
-from l2calib.sim.world import WORLD_NAMES, make_world
+from l2calib.sim.world import WORLD_NAMES
 
 
 def _motion(

@@ -7,9 +7,9 @@ from fakes import T_TRUE, FakeBackend, reference
 from torchrl.envs.utils import check_env_specs
 
 from l2calib import geometry as geo
-from l2calib.env import CalibrationEnv, action_to_extrinsic
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.reward import paper_reward
+from l2calib.train.env import CalibrationEnv, action_to_extrinsic
 
 
 def _env(refs, K=8, **kw):

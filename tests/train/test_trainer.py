@@ -6,10 +6,10 @@ import pytest
 import torch
 from fakes import reference, tiny_sequence
 
+from l2calib.assess.sensitivity import probe
 from l2calib.errors import ConfigError, TrainingError
 from l2calib.pipeline import PreparedData
 from l2calib.recipe import Recipe
-from l2calib.sensitivity import probe
 from l2calib.training import train_policy
 
 
@@ -61,7 +61,7 @@ def test_worker_count_does_not_change_the_result(fake_backend_env):
 @pytest.mark.parametrize("n", [1, 5, 12])
 def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     from l2calib import geometry as geo
-    from l2calib.train.envs import make_training_env, score_batch
+    from l2calib.train.env_build import make_training_env, score_batch
 
     data = _data()
     recipe = _recipe(workers=2)
@@ -156,13 +156,13 @@ def test_workers_must_divide_the_batch(fake_backend_env):
 
 
 def test_auto_workers_divide_the_batch(monkeypatch):
-    from l2calib.train import envs
+    from l2calib.train import env_build
 
-    monkeypatch.setattr(envs.os, "sched_getaffinity", lambda _pid: set(range(6)))
-    assert envs.resolve_workers(32, "auto") == 4  # 6 CPUs: the largest divisor of 32 below 6
-    assert envs.resolve_workers(30, "auto") == 6
-    assert envs.resolve_workers(7, "auto") == 1
-    assert envs.resolve_workers(32, 3) == 3  # explicit counts are checked by make_training_env
-    monkeypatch.setattr(envs.os, "sched_getaffinity", lambda _pid: {0})
-    assert envs.resolve_workers(32, "auto") == 1
+    monkeypatch.setattr(env_build.os, "sched_getaffinity", lambda _pid: set(range(6)))
+    assert env_build.resolve_workers(32, "auto") == 4  # 6 CPUs: the largest divisor of 32 below 6
+    assert env_build.resolve_workers(30, "auto") == 6
+    assert env_build.resolve_workers(7, "auto") == 1
+    assert env_build.resolve_workers(32, 3) == 3  # explicit counts are checked by make_training_env
+    monkeypatch.setattr(env_build.os, "sched_getaffinity", lambda _pid: {0})
+    assert env_build.resolve_workers(32, "auto") == 1
     assert Recipe.model_validate({}).train.workers == "auto"

@@ -1,6 +1,6 @@
 """How sharply the data pins down the LiDAR–IMU time offset (the 7th axis of the probe).
 
-Like :mod:`l2calib.sensitivity` for the extrinsic: the calibrated offset (``t_imu = t_lidar +
+Like :mod:`l2calib.assess.sensitivity` for the extrinsic: the calibrated offset (``t_imu = t_lidar +
 time_offset_s``) is moved by a ladder of steps, both signs, with the calibrated ``T_imu_lidar``
 kept, all in one batched backend call, and the **resolution** is the smallest step that lowers
 the reward by ``drop_fraction`` of its value. No step doing so means the reward is flat along the
@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-from l2calib.sensitivity import _width
+from l2calib.assess.sensitivity import _width
 
 #: Probe ladder (s): 1 ms resolves a well-excited hand-held recording; 30 ms shows a flat one.
 OFFSET_STEPS_S = (0.001, 0.003, 0.01, 0.03)
@@ -93,14 +93,14 @@ def probe_time_offset(env, T_imu_lidar: torch.Tensor, time_offset_s: float) -> O
     """Scores the calibrated ``T_imu_lidar [4, 4]`` at the :func:`probe_offsets` offsets.
 
     Args:
-        env: The open training env (see :func:`l2calib.train.envs.score_batch`).
+        env: The open training env (see :func:`l2calib.train.env_build.score_batch`).
         T_imu_lidar: ``[4, 4]`` float64 calibrated extrinsic, kept for every candidate.
         time_offset_s: Calibrated offset (s, ``t_imu = t_lidar + time_offset_s``).
 
     Returns:
         The offset's resolution; ``len(OFFSET_STEPS_S) * 2 + 1`` evaluations.
     """
-    from l2calib.train.envs import score_batch
+    from l2calib.train.env_build import score_batch
 
     offsets = probe_offsets(time_offset_s)
     T = torch.as_tensor(T_imu_lidar, dtype=torch.float64).expand(len(offsets), 4, 4).clone()

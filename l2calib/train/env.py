@@ -207,7 +207,7 @@ class CalibrationEnv(ScoringEnv):
         A ``ParallelEnv`` sends the same call to every worker; each scores every
         ``num_workers``-th candidate, so a batch of any size is split evenly over the processes
         (its ``step`` only takes batches of the fixed training size). See
-        :func:`l2calib.train.envs.score_batch`.
+        :func:`l2calib.train.env_build.score_batch`.
 
         Returns:
             As :meth:`score_candidates`, for the share.

@@ -6,7 +6,7 @@ centimetres from the reward's optimum even though the data resolves it. This sta
 reward from the mode, with a handful of batched backend calls:
 
 1. Evaluate ``T · exp(±s·eᵢ)`` for the six axes (rotation about and translation along the LiDAR's
-   own axes, as :mod:`l2calib.sensitivity` perturbs) — one call of 12 candidates.
+   own axes, as :mod:`l2calib.assess.sensitivity` perturbs) — one call of 12 candidates.
 2. Per axis, fit a parabola through ``(−s, r₋), (0, r₀), (+s, r₊)`` and take its vertex (clamped to
    ``±s``) where the reward curves downward; elsewhere step toward the better side if it scored
    higher. Evaluate the combined move.

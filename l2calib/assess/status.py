@@ -11,7 +11,7 @@
   holds no extrinsic at all (only the status, the reasons and a summary of the data). A flat
   probe after training leaves the partial result, marked as such.
 * ``unreliable`` — an extrinsic came out, but a warning makes it untrustworthy (the odometry and
-  the reference still disagree after the restarts: :mod:`l2calib.agreement`). The exit status
+  the reference still disagree after the restarts: :mod:`l2calib.assess.agreement`). The exit status
   stays 0; the paste-ready blocks carry a warning comment.
 * ``calibrated`` — otherwise (axes the data resolves only weakly are still listed in
   ``uncertainty.undetermined``).
@@ -129,7 +129,7 @@ def assess(result: Any, data: Any, selection_cfg: Any) -> Status:
     """The status of ``result`` computed on ``data`` (a ``PreparedData``).
 
     Args:
-        result: The :class:`~l2calib.outputs.calibration_file.CalibrationResult`.
+        result: The :class:`~l2calib.assess.result.CalibrationResult`.
         data: The prepared data (its segments and, when enabled, its selection).
         selection_cfg: The recipe's ``selection`` section (window length and thresholds).
     """

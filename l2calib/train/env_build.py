@@ -42,8 +42,8 @@ def make_env(
     threads: int = 0,
     worker_index: int = 0,
 ):
-    """A :class:`~l2calib.env.CalibrationEnv` (top-level so worker processes can build it)."""
-    from l2calib.env import CalibrationEnv
+    """A :class:`~l2calib.train.env.CalibrationEnv` (top-level so worker processes can build it)."""
+    from l2calib.train.env import CalibrationEnv
 
     recipe = Recipe.model_validate(recipe_data)
     backend = build_backend(recipe, segments, references, threads)
@@ -119,7 +119,7 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
     worker is sent the whole batch and scores its share (:meth:`CalibrationEnv.score_share`).
 
     Args:
-        env: A :class:`~l2calib.env.CalibrationEnv` or an open ``ParallelEnv`` of them.
+        env: A :class:`~l2calib.train.env.CalibrationEnv` or an open ``ParallelEnv`` of them.
         T_imu_lidar: ``[N, 4, 4]`` candidates.
         time_offset_s: ``[N]`` time offsets (s) or ``None``.
 
@@ -128,8 +128,8 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
     """
     from dataclasses import fields
 
-    from l2calib.env import CalibrationEnv
     from l2calib.reward import RewardBreakdown
+    from l2calib.train.env import CalibrationEnv
 
     if isinstance(env, CalibrationEnv):
         return env.score_candidates(T_imu_lidar, time_offset_s)[0]

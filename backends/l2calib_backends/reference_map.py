@@ -1,0 +1,83 @@
+"""Maps and start points placed by the reference trajectory (no extrinsic enters).
+
+The shared map all candidates of a LIO backend query (``map_mode: shared-map``) and the first
+map points of each window in ``odometry`` mode.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+
+from l2calib.data import LidarScan, Segment
+from l2calib.interfaces import ReferenceTrajectory
+from l2calib.trajectory import Trajectory
+from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
+from l2calib_backends.prepare import ScanTensors
+
+
+def reference_world_points(
+    scan: LidarScan, traj: Trajectory, voxel_m: float, min_range_m: float, max_range_m: float
+) -> torch.Tensor:
+    """World points ``[P, 3]`` of a scan placed and deskewed by the reference LiDAR trajectory.
+
+    The reference is a trajectory of the LiDAR itself, so each point is moved by the reference
+    pose interpolated at the point's own time: no extrinsic enters. Points are thinned to one per
+    ``voxel_m`` cell first, and points outside the reference's time span are dropped.
+    """
+    pts = np.asarray(scan.points_lidar, dtype=np.float64)
+    rng = np.linalg.norm(pts, axis=1)
+    keep = np.flatnonzero((rng >= min_range_m) & (rng <= max_range_m))
+    ijk = np.floor(pts[keep] / voxel_m).astype(np.int64) + (1 << 20)
+    _, first = np.unique((ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2], return_index=True)
+    sel = keep[np.sort(first)]
+    stamps = scan.point_stamps_ns[sel]
+    uniq, inv = np.unique(stamps, return_inverse=True)
+    poses, ok = traj.sample(uniq, max_gap_s=0.5)
+    if not ok.any():
+        return torch.zeros(0, 3, dtype=torch.float64)
+    T = torch.zeros(len(uniq), 4, 4, dtype=torch.float64)
+    T[torch.from_numpy(ok)] = poses.matrices()
+    T_pt = T[torch.from_numpy(inv)]
+    p = torch.from_numpy(pts[sel])
+    world = (T_pt[:, :3, :3] @ p[..., None])[..., 0] + T_pt[:, :3, 3]
+    return world[torch.from_numpy(ok[inv])]
+
+
+def build_reference_map(
+    segments: Sequence[Segment],
+    references: Sequence[ReferenceTrajectory],
+    voxel_m: float,
+    thickness_m: float,
+    min_range_m: float,
+    max_range_m: float,
+) -> FrozenPlaneMap:
+    """One plane map from every scan of every segment, placed by the reference trajectory.
+
+    Returned frozen (read-only, binary-search lookups): it never changes afterwards.
+    """
+    plane_map = VoxelPlaneMap(voxel_m, max_thickness_m=thickness_m)
+    for seg, ref in zip(segments, references, strict=True):
+        for scan in seg.scans:
+            world = reference_world_points(
+                scan, ref.trajectory, voxel_m / 4, min_range_m, max_range_m
+            )
+            plane_map.insert(world, torch.zeros(len(world), dtype=torch.int64))
+    return FrozenPlaneMap(plane_map)
+
+
+def seed_points(
+    seg: Segment, traj: Trajectory, starts: list[int], voxel_m: float, r_min: float, r_max: float
+) -> ScanTensors:
+    """Reference-placed world points of each window's first scan (odometry mode's first map)."""
+    clouds = [reference_world_points(seg.scans[i], traj, voxel_m, r_min, r_max) for i in starts]
+    m = max([len(c) for c in clouds] + [1])
+    points = torch.zeros(len(clouds), m, 3, dtype=torch.float64)
+    mask = torch.zeros(len(clouds), m, dtype=torch.bool)
+    for i, c in enumerate(clouds):
+        points[i, : len(c)] = c
+        mask[i, : len(c)] = True
+    zeros = torch.zeros(len(clouds), m, dtype=torch.float64)
+    return ScanTensors(points, zeros, mask, zeros)
