@@ -4,9 +4,10 @@
 
 * ``not-calibrated`` — the data could not determine the extrinsic: the resolution probe finds
   the reward flat along at least :data:`MIN_FLAT_AXES` of the six axes, or the selected data is
-  shorter than half a selection window (``selection.window_s``), or the selection found every IMU
-  axis too still to excite. ``l2calib calibrate`` then exits with :data:`EXIT_NOT_CALIBRATED`
-  and omits the paste-ready FAST-LIO / URDF blocks. The data rules are checked before training
+  shorter than half a selection window (``selection.window_s``), or every IMU axis is far below
+  the selection's excitation thresholds (:data:`STILL_SHARE` of them: a rig all but at rest).
+  ``l2calib calibrate`` then exits with :data:`EXIT_NOT_CALIBRATED` and omits the paste-ready
+  FAST-LIO / URDF blocks. The data rules are checked before training
   (:func:`before_training`): data that breaks them is not trained on, and ``calibration.yaml``
   holds no extrinsic at all (only the status, the reasons and a summary of the data). A flat
   probe after training leaves the partial result, marked as such.
@@ -31,6 +32,13 @@ EXIT_NOT_CALIBRATED = 3
 MIN_FLAT_AXES = 4
 #: Selected data below this share of ``selection.window_s`` is far too little.
 MIN_WINDOW_SHARE = 0.5
+#: Data is *clearly* too still only when every axis is below this share of the selection's
+#: excitation thresholds (``selection.min_gyro_rad_s`` / ``min_accel_m_s2``). Below the full
+#: thresholds an axis is only weakly excited, and weak excitation is what l2calib is for: the
+#: simulated UAV flights (RMS 0.04/0.02/0.15 rad/s, 0.12/0.26/0.03 m/s^2, every axis under the
+#: thresholds) calibrate to 1.6-2.8 cm / 0.16-0.24 deg (``benchmarks/results/calibration.json``,
+#: ``uav all``), while a rig at rest shows about 0.01 rad/s and 0.02 m/s^2.
+STILL_SHARE = 0.25
 
 
 @dataclass
@@ -92,15 +100,16 @@ def data_shortfalls(
     if excitation is not None:
         gyro = np.asarray(excitation[0], dtype=float)
         accel = np.asarray(excitation[1], dtype=float)
-        if (gyro < selection_cfg.min_gyro_rad_s).all() and (
-            accel < selection_cfg.min_accel_m_s2
-        ).all():
+        min_gyro = STILL_SHARE * selection_cfg.min_gyro_rad_s
+        min_accel = STILL_SHARE * selection_cfg.min_accel_m_s2
+        if (gyro < min_gyro).all() and (accel < min_accel).all():
             out.append(
                 (
                     "the selected data is too still: RMS angular rate "
-                    f"{_triple(gyro)} rad/s (needs {selection_cfg.min_gyro_rad_s:g} per axis) "
-                    f"and gravity-free acceleration {_triple(accel)} m/s^2 (needs "
-                    f"{selection_cfg.min_accel_m_s2:g})",
+                    f"{_triple(gyro)} rad/s (below {min_gyro:g} on every axis) and "
+                    f"gravity-free acceleration {_triple(accel)} m/s^2 (below {min_accel:g}); "
+                    f"the selection asks for {selection_cfg.min_gyro_rad_s:g} rad/s and "
+                    f"{selection_cfg.min_accel_m_s2:g} m/s^2 per axis",
                     "swing the rig about and along all three axes",
                 )
             )
