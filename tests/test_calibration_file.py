@@ -144,3 +144,7 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     assert [a["kept"] for a in written["attempts"]].count(True) == 1
     assert (out / "calibration" / "restart-1" / "checkpoint.pt").is_file()
     assert written["data"]["segments"] >= 1 and written["data"]["selected_s"] >= 1.5
+    # The report page holds its figures (the odometry's trajectories for every segment too)
+    page = (out / "calibration" / "report.html").read_text()
+    assert (out / "calibration" / "trajectories.png").stat().st_size > 10_000
+    assert page.count("data:image/png;base64,") == 3 and "ground truth translation" in page

@@ -1,117 +1,114 @@
-"""The calibration report: ``report.png`` (+ ``report.html`` around it).
+"""``report.html``: one self-contained page a person reads after a calibration.
 
-Panels: reward per iteration; per-axis convergence of translation and rotation with the
-policy's ±σ band (and the ground truth when it is known); the LiDAR trajectory of the first
-segment before (identity or prior extrinsic) and after calibration beside the reference.
+From the top: the status in colour with its reasons, the axes the data could not determine and
+any warnings; the result table exactly as ``calibrate`` prints it (recorded from the same rich
+printing code, :mod:`l2calib.outputs.console_summary`); the figures (``report.png``,
+``trajectories.png``, ``selection.png``) embedded as data URIs, so the page can be mailed or
+attached to a ticket on its own; and the full ``calibration.yaml`` at the bottom.
 """
 
 from __future__ import annotations
 
+import base64
 import html
+import io
 from pathlib import Path
 from typing import Any
 
-import numpy as np
+from l2calib.assess.status import NOT_CALIBRATED, UNRELIABLE
 
-from l2calib.assess.result import CalibrationResult
+#: Background and border colour per status.
+STATUS_COLORS = {
+    "calibrated": ("#e6f4ea", "#1e8e3e"),
+    UNRELIABLE: ("#fef7e0", "#e37400"),
+    NOT_CALIBRATED: ("#fce8e6", "#d93025"),
+}
 
-COLORS = ("tab:red", "tab:green", "tab:blue")
+CSS = """
+body{font-family:system-ui,sans-serif;max-width:1200px;margin:1em auto;padding:0 1em;color:#202124}
+.box{border-left:6px solid;padding:.5em 1em;margin:.8em 0;border-radius:4px}
+.box h2{margin:.2em 0;font-size:1.2em}
+.warn{background:#fef7e0;border-color:#e37400}
+pre.cli{font-size:13px;line-height:1.3;background:#fff;border:1px solid #ddd;padding:.6em;
+overflow-x:auto}
+figure{margin:1em 0}figure img{max-width:100%;border:1px solid #eee}
+figcaption{color:#5f6368;font-size:.9em}
+details pre{background:#f8f9fa;padding:.6em;font-size:12px;overflow-x:auto}
+"""
 
 
-def plot_report(
+def cli_summary_html(result: Any, truth: Any = None) -> str:
+    """The result table and status as ``calibrate`` prints them, as an HTML ``<pre>`` block."""
+    from rich.console import Console
+
+    from l2calib.outputs.console_summary import print_result, print_status
+
+    console = Console(record=True, width=110, file=io.StringIO(), color_system="truecolor")
+    if not result.stopped_before_training:
+        print_result(console, result, truth=truth)
+    print_status(console, result)
+    return console.export_html(inline_styles=True, code_format='<pre class="cli">{code}</pre>')
+
+
+def _items(values: list[str]) -> str:
+    return "<ul>" + "".join(f"<li>{html.escape(v)}</li>" for v in values) + "</ul>"
+
+
+def _alerts(result: Any) -> str:
+    """Status, undetermined axes and warnings at the top of the page, in colour."""
+    bg, border = STATUS_COLORS.get(result.status, STATUS_COLORS[NOT_CALIBRATED])
+    reasons = _items(result.status_reasons) if result.status_reasons else ""
+    out = (
+        f'<div class="box" id="status" style="background:{bg};border-color:{border}">'
+        f"<h2>status: {html.escape(result.status)}</h2>{reasons}</div>"
+    )
+    if result.undetermined:
+        out += (
+            '<div class="box warn" id="undetermined"><h2>Not determined by the data — do not '
+            "trust these components; record motion that excites them</h2>"
+            f"{_items(result.undetermined)}</div>"
+        )
+    warnings = [w for w in result.warnings if w not in result.status_reasons]  # said above
+    if warnings:
+        out += f'<div class="box warn" id="warnings"><h2>Warnings</h2>{_items(warnings)}</div>'
+    return out
+
+
+def _figure(path: Path, caption: str) -> str:
+    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    return (
+        f'<figure id="{html.escape(path.stem)}"><img alt="{html.escape(path.name)}" '
+        f'src="data:image/png;base64,{data}"><figcaption>{html.escape(caption)}</figcaption>'
+        "</figure>"
+    )
+
+
+def write_html(
     path: Path,
-    history: list[Any],
-    result: CalibrationResult,
-    trajectories: dict[str, np.ndarray] | None = None,
-    truth: np.ndarray | None = None,
+    result: Any,
+    figures: list[tuple[Path, str]],
+    calibration_yaml: Path | None = None,
+    truth: Any = None,
 ) -> Path:
-    """Draws the report figure.
+    """Writes the self-contained report page.
 
     Args:
-        path: PNG to write.
-        history: Iteration records (``l2calib.train.ppo.IterationRecord``).
-        result: The calibration.
-        trajectories: Optional ``{"reference": [N,3], "before": [N,3], "after": [N,3]}``.
-        truth: Optional ground-truth ``T_imu_lidar`` (4×4), e.g. from the simulator.
+        path: ``report.html`` to write.
+        result: The :class:`~l2calib.assess.result.CalibrationResult`.
+        figures: ``(png path, caption)`` pairs, embedded in this order (missing files skipped).
+        calibration_yaml: The written ``calibration.yaml``, shown in full at the bottom.
+        truth: Optional ground-truth ``T_imu_lidar`` (4×4): the table then shows the error.
     """
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    from l2calib.assess.result import CalibrationResult as _CR
-
-    it = np.array([h.iteration for h in history])
-    fig, ax = plt.subplots(2, 2, figsize=(12, 8.5))
-    a = ax[0, 0]
-    a.plot(it, [h.reward_mean for h in history], label="mean of candidates")
-    a.plot(it, [h.reward_max for h in history], label="best candidate", alpha=0.7)
-    a.set(xlabel="iteration", ylabel="reward", title="Reward")
-    a.legend()
-    t = np.array([h.translation_m for h in history]) * 100
-    ts = np.array([h.translation_sigma_m for h in history]) * 100
-    r = np.array([h.rpy_deg for h in history])
-    rs = np.array([h.rotation_sigma_deg for h in history])
-    gt_t = gt_r = None
-    if truth is not None:
-        gt = _CR(np.asarray(truth))
-        gt_t, gt_r = np.asarray(truth)[:3, 3] * 100, gt.rpy_deg
-    for panel, values, sig, gt_v, unit, names in (
-        (ax[0, 1], t, ts, gt_t, "cm", ("x", "y", "z")),
-        (ax[1, 0], r, rs, gt_r, "deg", ("roll", "pitch", "yaw")),
-    ):
-        for i, (name, color) in enumerate(zip(names, COLORS, strict=True)):
-            if len(values):
-                panel.plot(it, values[:, i], color=color, label=name)
-                panel.fill_between(it, values[:, i] - sig[:, i], values[:, i] + sig[:, i],
-                                   color=color, alpha=0.15)  # fmt: skip
-            if gt_v is not None:
-                panel.axhline(gt_v[i], color=color, ls="--", lw=0.8)
-        panel.set(xlabel="iteration", ylabel=unit)
-        panel.legend(fontsize=8)
-    ax[0, 1].set_title("Translation of the policy's mode (±σ; dashed: truth)")
-    ax[1, 0].set_title("Rotation (roll/pitch/yaw of the mode, ±σ per body axis)")
-    a = ax[1, 1]
-    if trajectories:
-        for name, style in (("reference", "k-"), ("before", "r:"), ("after", "b--")):
-            if name in trajectories:
-                xy = trajectories[name]
-                a.plot(xy[:, 0], xy[:, 1], style, label=name, lw=1.2)
-        a.axis("equal")
-        a.legend()
-        a.set(xlabel="x (m)", ylabel="y (m)", title="LiDAR trajectory, first segment (top view)")
-    else:
-        a.axis("off")
-    fig.suptitle(
-        f"l2calib: {result.evaluations} odometry evaluations, {result.iterations} iterations, "
-        f"{result.wall_time_s:.0f} s — {result.stop_reason}"
-    )
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
-
-
-def write_html(path: Path, result: CalibrationResult, images: list[str]) -> Path:
-    """A small HTML page with the summary table and the report images."""
-    d = result.to_dict()
-    rows = "".join(
-        f"<tr><th>{html.escape(k)}</th><td><pre>{html.escape(str(v))}</pre></td></tr>"
-        for k, v in d.items()
-        if k not in ("T_lidar_imu",)
-    )
-    imgs = "".join(f'<p><img src="{html.escape(i)}" style="max-width:100%"></p>' for i in images)
-    warn = ""
-    if result.undetermined:
-        items = "".join(f"<li>{html.escape(u)}</li>" for u in result.undetermined)
-        warn = f"<h2>Not determined by the data</h2><ul>{items}</ul>"
-    if result.warnings:
-        items = "".join(f"<li>{html.escape(w)}</li>" for w in result.warnings)
-        warn += f"<h2>Warnings</h2><ul>{items}</ul>"
+    body = _alerts(result) + "<h2>Result</h2>" + cli_summary_html(result, truth)
+    body += "".join(_figure(p, c) for p, c in figures if p.is_file())
+    if calibration_yaml is not None and calibration_yaml.is_file():
+        body += (
+            f"<details><summary>{html.escape(calibration_yaml.name)}</summary>"
+            f"<pre>{html.escape(calibration_yaml.read_text())}</pre></details>"
+        )
     path.write_text(
-        "<!doctype html><meta charset=utf-8><title>l2calib report</title>"
-        "<style>body{font-family:sans-serif;max-width:1100px;margin:auto}"
-        "th{text-align:left;vertical-align:top;padding-right:1em}</style>"
-        f"<h1>l2calib calibration</h1>{warn}<table>{rows}</table>{imgs}"
+        "<!doctype html><html lang=en><meta charset=utf-8>"
+        f"<title>l2calib report — {html.escape(result.status)}</title><style>{CSS}</style>"
+        f"<h1>l2calib calibration report</h1>{body}</html>\n"
     )
     return path

@@ -15,7 +15,8 @@ import torch
 from l2calib.assess.result import CalibrationResult
 from l2calib.errors import ConfigError, OutputError
 from l2calib.outputs.calibration_file import write_calibration
-from l2calib.outputs.report import plot_report, write_html
+from l2calib.outputs.report import write_html
+from l2calib.outputs.report_figures import plot_report, plot_trajectories
 from l2calib.outputs.writable import check_writable
 from l2calib.recipe import Recipe, dump_recipe
 
@@ -125,22 +126,46 @@ def write_metrics_csv(path: Path, history: list[Any]) -> Path:
     return path
 
 
-def trajectory_preview(recipe: Recipe, data, T_before: np.ndarray, T_after: np.ndarray):
-    """LiDAR positions of the first segment with two extrinsics, beside the reference."""
+def trajectory_preview(
+    recipe: Recipe,
+    data,
+    T_before: np.ndarray,
+    T_after: np.ndarray,
+    time_offset_s: float | None = None,
+) -> list[dict[str, Any]]:
+    """LiDAR positions of every segment with two extrinsics, beside the reference.
+
+    The odometry runs once more here, on a backend of its own: the training env's workers are
+    closed by now and hand back rewards, not trajectories (issue 22 asks for the open env).
+
+    Returns:
+        Per segment ``{"name", "reference", "before", "after"}``, positions ``[N,3]`` (m) at
+        the odometry's stamps where the reference has a pose.
+    """
     from l2calib.train.env_build import build_backend
 
-    seg, ref = data.segments[:1], data.references[:1]
-    backend = build_backend(recipe, seg, ref)
-    T = torch.from_numpy(np.stack([T_before, T_after]))
-    out = backend.evaluate(T)[0]
-    backend.close()
-    sampled, ok = ref[0].trajectory.sample(out.stamps_ns, recipe.reward.max_gap_s)
-    pos = out.T_world_lidar[:, :, :3, 3].numpy()
-    return {
-        "reference": sampled.t_world_body,
-        "before": pos[0][ok],
-        "after": pos[1][ok],
-    }
+    backend = build_backend(recipe, data.segments, data.references)
+    try:
+        T = torch.from_numpy(np.stack([T_before, T_after]))
+        offsets = None
+        if time_offset_s is not None:
+            offsets = torch.tensor([0.0, float(time_offset_s)], dtype=torch.float64)
+        outputs = backend.evaluate(T, offsets)
+    finally:
+        backend.close()
+    previews = []
+    for seg, ref, out in zip(data.segments, data.references, outputs, strict=True):
+        sampled, ok = ref.trajectory.sample(out.stamps_ns, recipe.reward.max_gap_s)
+        pos = out.T_world_lidar[:, :, :3, 3].numpy()
+        previews.append(
+            {
+                "name": seg.name,
+                "reference": sampled.t_world_body,
+                "before": pos[0][ok],
+                "after": pos[1][ok],
+            }
+        )
+    return previews
 
 
 def write_outputs(
@@ -152,7 +177,12 @@ def write_outputs(
     truth: np.ndarray | None = None,
     before: np.ndarray | None = None,
 ) -> dict[str, Path]:
-    """Writes calibration.yaml, recipe.yaml, metrics.csv, report.png/html, selection files."""
+    """Writes calibration.yaml, recipe.yaml, metrics.csv, the report and the selection files.
+
+    The report is ``report.html`` with ``report.png`` and ``trajectories.png``. A figure that
+    fails is noted in ``report-warnings.txt``; the calibration is written first and never lost
+    to a plotting error.
+    """
     out = Path(out)
     paths = {
         "calibration": write_calibration(out / "calibration.yaml", result),
@@ -160,18 +190,30 @@ def write_outputs(
     }
     (out / "recipe.yaml").write_text(dump_recipe(recipe))
     paths["recipe"] = out / "recipe.yaml"
-    images = []
-    trajectories = None
-    if before is None:
-        before = np.eye(4)
+    problems = []
     try:
-        trajectories = trajectory_preview(recipe, data, before, result.T_imu_lidar)
+        previews = trajectory_preview(
+            recipe, data, np.eye(4) if before is None else before, result.T_imu_lidar,
+            result.time_offset_s,
+        )  # fmt: skip
+        paths["trajectories"] = plot_trajectories(out / "trajectories.png", previews)
     except Exception as exc:  # the report must not lose the calibration
-        (out / "report-warnings.txt").write_text(f"trajectory preview failed: {exc}\n")
-    paths["report"] = plot_report(out / "report.png", history, result, trajectories, truth)
-    images.append("report.png")
+        problems.append(f"trajectory preview failed: {exc}")
+    paths["report"] = plot_report(out / "report.png", history, result, truth)
     if data.selection is not None:
         paths.update(_write_selection(out, data.selection))
-        images.append("selection.png")
-    paths["html"] = write_html(out / "report.html", result, images)
+    if problems:
+        (out / "report-warnings.txt").write_text("\n".join(problems) + "\n")
+        paths["report_warnings"] = out / "report-warnings.txt"
+    figures = [
+        (out / "report.png", "Training: reward, the policy's mode per iteration, per-axis "
+         "resolution of the result"),
+        (out / "trajectories.png", "Every segment: the odometry's LiDAR trajectory with the "
+         "extrinsic before (identity or the prior) and after calibration, and the reference"),
+        (out / "selection.png", "Data selection: the IMU's excitation and the windows kept"),
+    ]  # fmt: skip
+    paths["html"] = write_html(
+        out / "report.html", result, figures, paths["calibration"],
+        None if truth is None else np.asarray(truth),
+    )  # fmt: skip
     return paths
