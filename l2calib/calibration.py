@@ -90,6 +90,8 @@ class Calibration:
         self.verdict = None  # status.Status of the selected data, after prepare()
         self.result = None  # CalibrationResult, after train() (or assess() when stopped)
         self.history: list[Any] = []  # PPO iteration records of the kept attempt
+        self.trajectories: list[dict[str, Any]] = []  # before/after per segment, after train()
+        self.problems: list[str] = []  # what failed in the report's extras (not the result)
 
     @property
     def stopped(self) -> bool:
@@ -151,15 +153,18 @@ class Calibration:
                 "Calibration.train: nothing to train on",
                 fix="call prepare() first; when it stops the run (too little data), skip train()",
             )
-        self.result, outcome = train_policy(
+        prior = self.recipe.policy.prior
+        run = train_policy(
             self.recipe,
             self.data,
             self.out,
             resume=self.resume,
             progress=self.hooks.progress,
             stage=self.hooks.stage,
+            before=None if prior is None else prior.T_imu_lidar(),
         )
-        self.history = outcome.history
+        self.result, self.history = run.result, run.outcome.history
+        self.trajectories, self.problems = run.trajectories, run.problems
         return self.result
 
     def assess(self):
@@ -204,12 +209,11 @@ class Calibration:
             return {}
         if self.stopped:
             return write_stopped_outputs(self.out, self.recipe, self.result, self.data)
-        prior = self.recipe.policy.prior
-        before = None if prior is None else prior.T_imu_lidar()
         self.hooks.stage("writing the report")
         return write_outputs(
-            self.out, self.recipe, self.result, self.history, self.data, truth=truth, before=before
-        )
+            self.out, self.recipe, self.result, self.history, self.data, truth=truth,
+            trajectories=self.trajectories, problems=self.problems,
+        )  # fmt: skip
 
     def run(
         self,

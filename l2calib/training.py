@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -77,6 +78,26 @@ class _Scorer:
         return self.last.reward.detach().to(torch.float64)
 
 
+@dataclass
+class TrainedRun:
+    """What :func:`train_policy` hands back.
+
+    Attributes:
+        result: The kept attempt's calibration (costs summed over every attempt).
+        outcome: The kept attempt's PPO outcome (``history``: one record per iteration).
+        trajectories: Per segment, the LiDAR trajectory with the extrinsic before (identity or
+            the prior) and after calibration beside the reference, run on the training env
+            before it closed (``{"name", "reference", "before", "after"}``, [N,3] m); empty
+            when that failed (``problems`` says why).
+        problems: What went wrong with the extras (never with the calibration).
+    """
+
+    result: CalibrationResult
+    outcome: Any
+    trajectories: list[dict[str, Any]] = field(default_factory=list)
+    problems: list[str] = field(default_factory=list)
+
+
 #: Seed of restart ``k``: ``train.seed + k · RESTART_SEED_STRIDE`` (far from the seeds users
 #: and the benchmarks pick by hand, so a restart does not repeat another run's first attempt).
 RESTART_SEED_STRIDE = 10_007
@@ -89,8 +110,12 @@ def train_policy(
     resume: bool = False,
     progress: Callable[[Any], None] | None = None,
     stage: Callable[[str], None] | None = None,
-) -> tuple[CalibrationResult, Any]:
+    before: np.ndarray | None = None,
+) -> TrainedRun:
     """Builds env + policy from the recipe, runs PPO; returns the calibration and the outcome.
+
+    Before the env closes, the kept result and ``before`` (the report's "before" extrinsic,
+    4×4; default identity) run once more on it for the report's trajectories.
 
     When the result fails the reference-agreement check (:mod:`l2calib.assess.agreement`), PPO
     starts again from scratch with another seed, up to ``train.restarts`` times, and the attempt
@@ -132,6 +157,8 @@ def train_policy(
                 f"PPO starts again with seed {seed + RESTART_SEED_STRIDE} "
                 f"(restart {k + 1} of at most {recipe.train.restarts})"
             )
+        run = TrainedRun(*_keep_best(attempts))
+        _add_trajectories(run, env, np.eye(4) if before is None else before)
     except Interrupted as exc:
         stop_workers(env)  # they may be mid-batch: a polite close would wait for them
         env.__dict__["is_closed"] = True
@@ -141,7 +168,28 @@ def train_policy(
     finally:
         if not getattr(env, "is_closed", False):
             env.close()
-    return _keep_best(attempts)
+    return run
+
+
+def _add_trajectories(run: TrainedRun, env, before: np.ndarray) -> None:
+    """Fills ``run.trajectories`` from the open env (a failure is noted, never raised)."""
+    from l2calib.train.env_build import trajectory_previews
+
+    result = run.result
+    T = torch.from_numpy(np.stack([np.asarray(before, dtype=np.float64), result.matrix]))
+    offsets = None
+    if result.time_offset_s is not None:
+        offsets = torch.tensor([0.0, float(result.time_offset_s)], dtype=torch.float64)
+    try:
+        previews = trajectory_previews(env, T, offsets)
+    except Exception as exc:  # the report's extra must not lose the calibration
+        run.problems.append(f"trajectory preview failed: {exc}")
+        return
+    run.trajectories = [
+        {"name": p["name"], "reference": p["reference"], "before": p["positions"][0],
+         "after": p["positions"][1]}
+        for p in previews
+    ]  # fmt: skip
 
 
 def _offset_from_rates(recipe: Recipe, data: PreparedData, say: Callable[[str], None]) -> None:

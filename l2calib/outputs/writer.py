@@ -10,7 +10,6 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from l2calib.assess.result import CalibrationResult
 from l2calib.errors import ConfigError, OutputError
@@ -126,48 +125,6 @@ def write_metrics_csv(path: Path, history: list[Any]) -> Path:
     return path
 
 
-def trajectory_preview(
-    recipe: Recipe,
-    data,
-    T_before: np.ndarray,
-    T_after: np.ndarray,
-    time_offset_s: float | None = None,
-) -> list[dict[str, Any]]:
-    """LiDAR positions of every segment with two extrinsics, beside the reference.
-
-    The odometry runs once more here, on a backend of its own: the training env's workers are
-    closed by now and hand back rewards, not trajectories (issue 22 asks for the open env).
-
-    Returns:
-        Per segment ``{"name", "reference", "before", "after"}``, positions ``[N,3]`` (m) at
-        the odometry's stamps where the reference has a pose.
-    """
-    from l2calib.train.env_build import build_backend
-
-    backend = build_backend(recipe, data.segments, data.references)
-    try:
-        T = torch.from_numpy(np.stack([T_before, T_after]))
-        offsets = None
-        if time_offset_s is not None:
-            offsets = torch.tensor([0.0, float(time_offset_s)], dtype=torch.float64)
-        outputs = backend.evaluate(T, offsets)
-    finally:
-        backend.close()
-    previews = []
-    for seg, ref, out in zip(data.segments, data.references, outputs, strict=True):
-        sampled, ok = ref.trajectory.sample(out.stamps_ns, recipe.reward.max_gap_s)
-        pos = out.T_world_lidar[:, :, :3, 3].numpy()
-        previews.append(
-            {
-                "name": seg.name,
-                "reference": sampled.t_world_body,
-                "before": pos[0][ok],
-                "after": pos[1][ok],
-            }
-        )
-    return previews
-
-
 def write_outputs(
     out: Path,
     recipe: Recipe,
@@ -175,13 +132,14 @@ def write_outputs(
     history: list[Any],
     data,
     truth: np.ndarray | None = None,
-    before: np.ndarray | None = None,
+    trajectories: list[dict[str, Any]] | None = None,
+    problems: list[str] | None = None,
 ) -> dict[str, Path]:
     """Writes calibration.yaml, recipe.yaml, metrics.csv, the report and the selection files.
 
-    The report is ``report.html`` with ``report.png`` and ``trajectories.png``. A figure that
-    fails is noted in ``report-warnings.txt``; the calibration is written first and never lost
-    to a plotting error.
+    The report is ``report.html`` with ``report.png`` and ``trajectories.png`` (from
+    ``trajectories``, computed by training on its open env). ``problems`` (what failed in those
+    extras) go to ``report-warnings.txt``; ``calibration.yaml`` is written first.
     """
     out = Path(out)
     paths = {
@@ -190,15 +148,9 @@ def write_outputs(
     }
     (out / "recipe.yaml").write_text(dump_recipe(recipe))
     paths["recipe"] = out / "recipe.yaml"
-    problems = []
-    try:
-        previews = trajectory_preview(
-            recipe, data, np.eye(4) if before is None else before, result.T_imu_lidar,
-            result.time_offset_s,
-        )  # fmt: skip
-        paths["trajectories"] = plot_trajectories(out / "trajectories.png", previews)
-    except Exception as exc:  # the report must not lose the calibration
-        problems.append(f"trajectory preview failed: {exc}")
+    problems = list(problems or [])
+    if trajectories:
+        paths["trajectories"] = plot_trajectories(out / "trajectories.png", trajectories)
     paths["report"] = plot_report(out / "report.png", history, result, truth)
     if data.selection is not None:
         paths.update(_write_selection(out, data.selection))

@@ -219,3 +219,38 @@ class CalibrationEnv(ScoringEnv):
             count = torch.zeros(0, dtype=torch.int64)
             return RewardBreakdown(none, none.clone(), none.clone(), count), count.clone()
         return self.score_candidates(T, offsets)
+
+    def trajectory_share(
+        self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int
+    ) -> list[dict[str, np.ndarray | str]]:
+        """LiDAR positions of this worker's share of the candidates, for the report.
+
+        The same share as :meth:`score_share` (every ``num_workers``-th candidate), run on the
+        backend that is already prepared: the report needs no second odometry preparation.
+        Estimates are shown in the reference's frame (aligned as the reward aligns them).
+
+        Returns:
+            Per segment ``{"name": str, "reference": [N,3], "positions": [k,N,3]}`` (m) at the
+            odometry's stamps where the reference has a pose (``k`` candidates of the share);
+            empty when the share is.
+        """
+        from l2calib.alignment import umeyama
+
+        share = slice(self.worker_index, None, num_workers)
+        T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
+        if T.shape[0] == 0:
+            return []
+        out = []
+        for i, o in enumerate(self.backend.evaluate(T, offsets)):
+            T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
+            ref = T_ref[ok][:, :3, 3]
+            pos = o.T_world_lidar[:, ok][..., :3, 3]
+            valid = o.valid[:, ok] & torch.isfinite(pos).all(-1)
+            if self.align != "none":
+                R, t, s = umeyama(
+                    torch.nan_to_num(pos), ref.expand_as(pos), valid.to(F64), self.align == "sim3"
+                )
+                pos = s[:, None, None] * pos @ R.transpose(-1, -2) + t[:, None, :]
+            pos = torch.where(valid[..., None], pos, torch.nan)  # lost poses: gaps in the plot
+            out.append({"name": o.segment, "reference": ref.numpy(), "positions": pos.numpy()})
+        return out

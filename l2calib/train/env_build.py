@@ -13,6 +13,7 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import torch
 
 from l2calib.data import Segment
@@ -145,3 +146,35 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
             full[i::n] = getattr(part, f.name)
         merged[f.name] = full
     return RewardBreakdown(**merged)
+
+
+def trajectory_previews(
+    env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
+) -> list[dict[str, np.ndarray | str]]:
+    """LiDAR trajectories of ``N`` candidates on every segment from an open training env.
+
+    Spread over the workers like :func:`score_batch` (see
+    :meth:`~l2calib.train.env.CalibrationEnv.trajectory_share`).
+
+    Returns:
+        Per segment ``{"name", "reference": [M,3], "positions": [N,M,3]}`` (m), candidates in
+        their order.
+    """
+    from l2calib.train.env import CalibrationEnv
+
+    if isinstance(env, CalibrationEnv):
+        return env.trajectory_share(T_imu_lidar, time_offset_s, 1)
+    if env.is_closed:
+        env.start()
+    n = env.num_workers
+    shares = env.trajectory_share(T_imu_lidar, time_offset_s, n)
+    merged = []
+    for j, first in enumerate(shares[0]):
+        positions = np.empty((T_imu_lidar.shape[0], *first["positions"].shape[1:]))
+        for i, share in enumerate(shares):
+            if share:
+                positions[i::n] = share[j]["positions"]
+        merged.append(
+            {"name": first["name"], "reference": first["reference"], "positions": positions}
+        )
+    return merged

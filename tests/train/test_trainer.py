@@ -32,7 +32,8 @@ def _run(recipe, out=None, resume=False, progress=None):
     data = _data()
     ref = data.references[0]
     data.references = [type(ref)(data.segments[0].name, ref.trajectory)]
-    return train_policy(recipe, data, out, resume=resume, progress=progress)
+    run = train_policy(recipe, data, out, resume=resume, progress=progress)
+    return run.result, run.outcome
 
 
 def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
@@ -56,6 +57,24 @@ def test_worker_count_does_not_change_the_result(fake_backend_env):
     assert torch.allclose(torch.as_tensor(r1.T_imu_lidar), torch.as_tensor(r2.T_imu_lidar))
     assert r1.final_reward == pytest.approx(r2.final_reward, abs=1e-12)
     assert r1.reference_agreement == r2.reference_agreement
+
+
+def test_the_reports_trajectories_come_from_the_open_training_env(fake_backend_env):
+    runs = []
+    for workers in (1, 2):  # 2: "before" runs on one worker, "after" on the other
+        data = _data()
+        ref = data.references[0]
+        data.references = [type(ref)(data.segments[0].name, ref.trajectory)]
+        runs.append(train_policy(_recipe(workers=workers), data, None))
+    for run in runs:
+        assert run.problems == [] and [t["name"] for t in run.trajectories] == ["s:0.0-4.9"]
+        traj = run.trajectories[0]
+        n = len(traj["reference"])
+        assert n > 10 and traj["before"].shape == traj["after"].shape == (n, 3)
+    one, two = (r.trajectories[0] for r in runs)
+    for key in ("reference", "before", "after"):  # the shares merge back in candidate order
+        assert torch.allclose(torch.as_tensor(one[key]), torch.as_tensor(two[key]), equal_nan=True)
+    assert not torch.allclose(torch.as_tensor(one["before"]), torch.as_tensor(one["after"]))
 
 
 @pytest.mark.parametrize("n", [1, 5, 12])
