@@ -63,11 +63,16 @@ def _case(
 
 
 def run_row(
-    offset_ms: float, reference: str, estimate: bool, profile: str, start: str = "rates"
+    offset_ms: float,
+    reference: str,
+    estimate: bool,
+    profile: str,
+    start: str = "rates",
+    train_seed: int = 0,
 ) -> dict[str, Any]:
     """One calibration, with the offset's fields (and ``inspect``'s estimate on the uav row)."""
     case = _case(offset_ms, reference, estimate, profile, start)
-    row = run_case(case, train_seed=0)
+    row = run_case(case, train_seed=train_seed)
     row.update(profile=profile, offset_ms=offset_ms, reference=reference, estimate=estimate)
     row["start"] = start if estimate else "-"
     if estimate:
@@ -105,7 +110,8 @@ def _inspect(case: Case) -> dict[str, Any]:
 
 def key(r: dict[str, Any]) -> tuple:
     """A row's identity in the JSON (rows with the same key replace each other)."""
-    return r["profile"], r["offset_ms"], r["reference"], r["estimate"], start_of(r)
+    seed = r.get("train_seed", 0)
+    return r["profile"], r["offset_ms"], r["reference"], r["estimate"], start_of(r), seed
 
 
 def start_of(r: dict[str, Any]) -> str:
@@ -121,7 +127,11 @@ def start_of(r: dict[str, Any]) -> str:
 
 def verdicts(rows: list[dict[str, Any]]) -> dict[tuple, str]:
     """Per hand-held row with estimation on: ``met`` / ``MISSED (why)`` against the baseline."""
-    base = {r["reference"]: r for r in rows if r["profile"] == "handheld" and not r["estimate"]}
+    base = {  # the same reference and training seed, zero offset, estimation off
+        (r["reference"], r.get("train_seed", 0)): r
+        for r in rows
+        if r["profile"] == "handheld" and not r["estimate"] and r["offset_ms"] == 0
+    }
     out = {}
     for r in rows:
         if r["profile"] != "handheld" or not r["estimate"]:
@@ -129,7 +139,7 @@ def verdicts(rows: list[dict[str, Any]]) -> dict[tuple, str]:
         why = []
         if abs(r["offset_error_ms"]) > OFFSET_TARGET_MS:
             why.append(f"offset {r['offset_error_ms']:+.1f} ms")
-        b = base.get(r["reference"])
+        b = base.get((r["reference"], r.get("train_seed", 0)))
         if b is None:
             why.append("no baseline")
         else:
@@ -147,7 +157,14 @@ def render(results: dict[str, Any]) -> str:
     """The markdown table."""
     rows = sorted(
         results["rows"],
-        key=lambda r: (r["profile"], r["reference"], start_of(r), r["offset_ms"], r["estimate"]),
+        key=lambda r: (
+            r["profile"],
+            r["reference"],
+            start_of(r),
+            r.get("train_seed", 0),
+            r["offset_ms"],
+            r["estimate"],
+        ),  # fmt: skip
     )
     v = verdicts(rows)
     lines = [
@@ -155,9 +172,9 @@ def render(results: dict[str, Any]) -> str:
         "Simulated OS1-16 + VN100, `t_imu = t_lidar + offset`; calibrated from no initial guess. "
         "Targets (hand-held): offset within 1 ms; extrinsic error within 10 % (or 0.2 cm / "
         "0.02°) of the zero-offset run with estimation off. Wall times carry each row's load.\n",
-        "| profile | reference | offset ms | estimate | starts at | found ms | error ms "
+        "| profile | reference | seed | offset ms | estimate | starts at | found ms | error ms "
         "| resolution ms | t cm | r deg | evals | wall s | load | verdict |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         est = r["estimate"]
@@ -166,7 +183,8 @@ def render(results: dict[str, Any]) -> str:
         res = r.get("time_offset_resolution_s")
         res_txt = ("flat" if res is None else f"{1000 * res:.1f}") if est else "-"
         lines.append(
-            f"| {r['profile']} | {r['reference']} | {r['offset_ms']:+g} | {'on' if est else 'off'} "
+            f"| {r['profile']} | {r['reference']} | {r.get('train_seed', 0)} "
+            f"| {r['offset_ms']:+g} | {'on' if est else 'off'} "
             f"| {_start_text(r)} | {found} | {err} | {res_txt} | {r['t_err_cm']:.2f} "
             f"| {r['r_err_deg']:.3f} "
             f"| {r['evaluations']} | {r['wall_s']:.0f} | {r['machine']['load'][0]:.1f} "
@@ -203,11 +221,25 @@ def main() -> None:
     parser.add_argument("--references", nargs="+", default=list(REFERENCES))
     parser.add_argument("--baseline", action=argparse.BooleanOptionalAction, default=True,
                         help="also the zero-offset runs with estimation off")  # fmt: skip
+    parser.add_argument(
+        "--off", action="store_true",
+        help="also each offset with estimation off (what not estimating a real offset costs)",
+    )  # fmt: skip
+    parser.add_argument("--handheld", action=argparse.BooleanOptionalAction, default=True,
+                        help="the hand-held rows (--no-handheld: only the uav rows)")  # fmt: skip
     parser.add_argument("--uav", action="store_true", help="also the uav row (20 ms, gt)")
+    parser.add_argument(
+        "--uav-zero", action="store_true",
+        help="also the uav sequence at zero offset, estimation on and off (gt): what estimating "
+        "costs where the offset is weakly observable",
+    )  # fmt: skip
     parser.add_argument(
         "--start", choices=("rates", "zero"), default="rates",
         help="where the offset's estimation starts (rates, the default: the references' |ω|)",
     )  # fmt: skip
+    parser.add_argument(
+        "--train-seeds", type=int, nargs="+", default=[0], help="training seeds per row"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS)
     parser.add_argument("--render", action="store_true")
     args = parser.parse_args()
@@ -216,14 +248,22 @@ def main() -> None:
         return
     torch.set_default_dtype(torch.float64)
     console = Console()
-    plan = [(o, ref, True, "handheld") for ref in args.references for o in args.offsets_ms]
-    if args.baseline:
+    offsets = args.offsets_ms if args.handheld else []
+    plan = [(o, ref, True, "handheld") for ref in args.references for o in offsets]
+    if args.off:
+        plan += [(o, ref, False, "handheld") for ref in args.references for o in offsets if o]
+    if args.baseline and args.handheld:
         plan = [(0.0, ref, False, "handheld") for ref in args.references] + plan
     if args.uav:
         plan.append((20.0, "gt", True, "uav"))
-    for n, (offset, ref, est, profile) in enumerate(plan, 1):
-        console.print(f"[{n}/{len(plan)}] {profile} {offset:+g} ms, {ref}, estimation {est}")
-        row = run_row(offset, ref, est, profile, args.start)
+    if args.uav_zero:
+        plan += [(0.0, "gt", False, "uav"), (0.0, "gt", True, "uav")]
+    plan = [(*p, seed) for seed in args.train_seeds for p in plan]
+    for n, (offset, ref, est, profile, seed) in enumerate(plan, 1):
+        console.print(
+            f"[{n}/{len(plan)}] {profile} {offset:+g} ms, {ref}, estimation {est}, seed {seed}"
+        )
+        row = run_row(offset, ref, est, profile, args.start, seed)
         existing = json.loads(args.out.read_text()) if args.out.is_file() else {"rows": []}
         rows = [r for r in existing["rows"] if key(r) != key(row)] + [row]
         results = {"benchmark": "bench_time_offset", "rows": rows, "machine": machine_info()}

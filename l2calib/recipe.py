@@ -146,7 +146,7 @@ class TrainConfig(StrictModel):
     candidates_per_iteration: int = Field(32, ge=2)
     max_iterations: int = Field(150, ge=1)
     max_evaluations: int = Field(5000, ge=1)
-    estimate_time_offset: bool = False
+    estimate_time_offset: bool = True
     init_time_offset_s: float | None = Field(
         None,
         ge=-0.5,
@@ -182,7 +182,8 @@ class TrainConfig(StrictModel):
         6,
         ge=0,
         description="after PPO, climb the reward from the policy's mode with this many batched "
-        "probe rounds (13 evaluations each; l2calib.assess.refine); 0: off",
+        "probe rounds (13 evaluations each, 15 with the time offset; l2calib.assess.refine); "
+        "0: off",
     )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
@@ -192,6 +193,9 @@ class TrainConfig(StrictModel):
         "check, e.g. a run stuck in a local optimum; the highest reward is kept; 0: off",
     )
     refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
+    refine_offset_step_s: float = Field(
+        0.002, gt=0, description="first time-offset step of refine (s; with estimate_time_offset)"
+    )
 
     @property
     def iteration_budget(self) -> int:

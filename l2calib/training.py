@@ -38,7 +38,8 @@ def offset_start_s(train: Any, hint_s: float | None) -> float | None:
     """
     if not train.estimate_time_offset:
         return None
-    return hint_s if train.init_time_offset_s is None else train.init_time_offset_s
+    start = hint_s if train.init_time_offset_s is None else train.init_time_offset_s
+    return None if start is None else float(start)  # numpy scalars would not reach the YAML
 
 
 def undetermined_axes(
@@ -68,11 +69,13 @@ class _Scorer:
         self.env, self.offset = env, time_offset_s
         self.last = None  # the latest call's RewardBreakdown (reward ingredients per candidate)
 
-    def __call__(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
+    def __call__(
+        self, T_imu_lidar: torch.Tensor, offsets: torch.Tensor | None = None
+    ) -> torch.Tensor:
+        """Rewards of ``T_imu_lidar [N,4,4]``, at ``offsets [N]`` (s) or the fixed offset."""
         from l2calib.train.env_build import score_batch
 
-        offsets = None
-        if self.offset is not None:
+        if offsets is None and self.offset is not None:
             offsets = torch.full((T_imu_lidar.shape[0],), float(self.offset), dtype=torch.float64)
         self.last = score_batch(self.env, T_imu_lidar, offsets)
         return self.last.reward.detach().to(torch.float64)
@@ -322,9 +325,13 @@ def _attempt(
     if cfg.refine_rounds > 0:
         say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
         refined = refine(
-            score, T_mode, cfg.refine_rounds, cfg.refine_rot_step_deg, cfg.refine_trans_step_m
-        )
+            score, T_mode, cfg.refine_rounds, cfg.refine_rot_step_deg, cfg.refine_trans_step_m,
+            offset_s=offset, offset_step_s=cfg.refine_offset_step_s,
+        )  # fmt: skip
         T_mode = torch.from_numpy(refined.T_imu_lidar)
+        if offset is not None:  # the offset was the refinement's seventh axis
+            offset = refined.time_offset_s
+            score = _Scorer(env, offset)
         log.info(
             "refine: reward %.5f -> %.5f, moved %.3f deg / %.2f cm (%d evaluations)",
             refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
@@ -379,5 +386,10 @@ def _refine_summary(refined: Any) -> dict[str, Any]:
         "refined_reward": round(refined.reward, 6),
         "moved_deg": round(refined.moved_deg, 4),
         "moved_m": round(refined.moved_m, 5),
+        **(
+            {"moved_time_offset_ms": round(1000 * refined.moved_offset_s, 3)}
+            if refined.time_offset_s is not None
+            else {}
+        ),
         "evaluations": int(refined.evaluations),
     }

@@ -57,3 +57,26 @@ def test_refine_does_not_move_on_a_flat_reward():
 
     res = refine(flat, T_OPT, rounds=2)
     assert np.allclose(res.T_imu_lidar, T_OPT.numpy()) and res.reward == 0.5
+
+
+def test_refine_climbs_the_time_offset_with_the_rotation():
+    """Offset and rotation trade off (a late IMU looks like a turned LiDAR): both are refined."""
+    offset_opt = 0.010
+
+    def score(T: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        D = geo.transform_inverse(T_OPT)[None] @ T
+        dr = geo.so3_log(D[:, :3, :3])
+        dr[:, 2] = dr[:, 2] + 2.0 * (offsets - offset_opt)  # yaw couples with the offset
+        dt, do = D[:, :3, 3], offsets - offset_opt
+        return torch.exp(
+            -(dt**2).sum(-1) / 0.05**2 - (dr**2).sum(-1) / np.radians(2.0) ** 2 - (do / 0.01) ** 2
+        )
+
+    start = T_OPT @ geo.se3_exp(torch.tensor([[0.01, 0.0, 0.0, 0.0, 0.0, 0.01]]))[0]
+    res = refine(score, start, rounds=10, offset_s=0.004)
+    t_err, r_err = _errors(res.T_imu_lidar)
+    assert abs(res.time_offset_s - offset_opt) < 0.0005 and r_err < 0.05, (res.time_offset_s, r_err)
+    assert res.moved_offset_s > 0.005 and res.evaluations <= 1 + 10 * 15
+    # Without the seventh axis the rotation absorbs the offset's error instead.
+    held = refine(lambda T: score(T, torch.full((T.shape[0],), 0.004)), start, rounds=10)
+    assert _errors(held.T_imu_lidar)[1] > 0.5

@@ -13,6 +13,10 @@ reward from the mode, with a handful of batched backend calls:
 3. Keep the best of {the move, the best probe point, the current extrinsic}; halve the steps when
    nothing beat the current extrinsic (the optimum is within ±s).
 
+With a time offset (``offset_s``), the offset is a seventh axis of the same climb: rotation and
+offset trade off against each other on a rotating rig (a late IMU looks like a turned LiDAR), so
+polishing the rotation with the offset held at PPO's mode leaves both off.
+
 Every accepted step scored strictly higher on the reward itself, so the result is never worse
 than the policy's mode on the training reward. Written here (not scipy.optimize) because each
 round must be one batched backend call of many candidates, which scipy's sequential optimisers do
@@ -31,7 +35,8 @@ from l2calib import geometry as geo
 
 __all__ = ["RefineResult", "refine"]
 
-Scorer = Callable[[torch.Tensor], torch.Tensor]  # [N, 4, 4] -> [N] rewards
+#: ``score(T [N,4,4]) -> [N]`` rewards; with a time offset ``score(T, offsets [N] s)``.
+Scorer = Callable[..., torch.Tensor]
 
 
 @dataclass
@@ -46,6 +51,8 @@ class RefineResult:
         moved_deg: rotation between start and result (deg).
         moved_m: translation between start and result (m).
         history: per round ``(reward, rotation step deg, translation step m)``.
+        time_offset_s: the refined time offset (s), or ``None`` when none was refined.
+        moved_offset_s: how far the offset moved (s).
     """
 
     T_imu_lidar: np.ndarray
@@ -55,6 +62,8 @@ class RefineResult:
     moved_deg: float
     moved_m: float
     history: list[tuple[float, float, float]] = field(default_factory=list)
+    time_offset_s: float | None = None
+    moved_offset_s: float = 0.0
 
 
 def _perturb(T: torch.Tensor, xi: torch.Tensor) -> torch.Tensor:
@@ -84,6 +93,8 @@ def refine(
     rot_step_deg: float = 1.0,
     trans_step_m: float = 0.04,
     start_reward: float | None = None,
+    offset_s: float | None = None,
+    offset_step_s: float = 0.002,
 ) -> RefineResult:
     """Climbs the reward from ``T_start`` (module docstring).
 
@@ -94,33 +105,46 @@ def refine(
         rot_step_deg: First rotation step (deg); halves when a round finds nothing better.
         trans_step_m: First translation step (m); halves alike.
         start_reward: Reward of ``T_start`` if already known (else one more evaluation).
+        offset_s: Starting time offset (s) to refine as a seventh axis (``score`` then takes
+            the offsets too), or ``None``: the extrinsic alone.
+        offset_step_s: First time-offset step (s); halves with the others.
 
     Returns:
         The :class:`RefineResult`; ``T_imu_lidar`` is ``T_start`` if nothing scored higher.
     """
     T0 = torch.as_tensor(np.asarray(T_start), dtype=torch.float64)
-    T, evals = T0.clone(), 0
+    timed = offset_s is not None
+
+    def at(T: torch.Tensor, off: float, xi: torch.Tensor) -> torch.Tensor:
+        """Rewards of ``[N]`` moves ``xi [N, 6 or 7]`` from ``(T, off)``."""
+        Ts = _perturb(T, xi[:, :6])
+        if not timed:
+            return score(Ts).detach().to(torch.float64)
+        return score(Ts, off + xi[:, 6]).detach().to(torch.float64)
+
+    T, off, evals = T0.clone(), float(offset_s or 0.0), 0
+    n = 7 if timed else 6
     if start_reward is None:
-        start_reward, evals = float(score(T[None])[0]), 1
+        start_reward, evals = float(at(T, off, torch.zeros(1, n, dtype=torch.float64))[0]), 1
     r = float(start_reward)
-    steps = np.array([trans_step_m] * 3 + [np.radians(rot_step_deg)] * 3)
+    steps = np.array(
+        [trans_step_m] * 3 + [np.radians(rot_step_deg)] * 3 + ([offset_step_s] if timed else [])
+    )
     history = []
     for _ in range(rounds):
         xi = torch.from_numpy(np.concatenate([np.diag(steps), -np.diag(steps)]))
-        probe = score(_perturb(T, xi)).detach().numpy().astype(np.float64)
-        r_plus, r_minus = probe[:6], probe[6:]
+        probe = at(T, off, xi).numpy()
+        r_plus, r_minus = probe[:n], probe[n:]
         move = torch.from_numpy(_vertex(r, r_plus, r_minus) * steps)
-        options = [(r, T)]
         i = int(np.argmax(probe))
-        options.append((float(probe[i]), _perturb(T, xi[i : i + 1])[0]))
-        evals += 12
+        options = [(r, T, off), (float(probe[i]), *_step(T, off, xi[i], timed))]
+        evals += 2 * n
         if float(move.abs().max()) > 0:
-            T_move = _perturb(T, move[None])[0]
-            options.append((float(score(T_move[None])[0]), T_move))
+            options.append((float(at(T, off, move[None])[0]), *_step(T, off, move, timed)))
             evals += 1
-        best_r, best_T = max(options, key=lambda o: o[0])
+        best_r, best_T, best_off = max(options, key=lambda o: o[0])
         if best_r > r:
-            r, T = best_r, best_T
+            r, T, off = best_r, best_T, best_off
         else:
             steps = steps / 2.0  # the optimum is within the steps: look closer
         history.append((r, float(np.degrees(steps[3])), float(steps[0])))
@@ -133,4 +157,11 @@ def refine(
         moved_deg=float(np.degrees(float(geo.rotation_angle(d[:3, :3])))),
         moved_m=float(d[:3, 3].norm()),
         history=history,
+        time_offset_s=float(off) if timed else None,
+        moved_offset_s=float(abs(off - float(offset_s))) if timed else 0.0,
     )
+
+
+def _step(T: torch.Tensor, off: float, xi: torch.Tensor, timed: bool):
+    """``(T · exp(xi[:6]), off + xi[6])`` for one move."""
+    return _perturb(T, xi[None, :6])[0], off + (float(xi[6]) if timed else 0.0)

@@ -154,7 +154,9 @@ class CalibrationResult:
         """``time_offset``: convention, resolution from the reward probe, starting value."""
         block: dict[str, Any] = {
             "convention": "t_imu = t_lidar + time_offset_s (s)",
-            "start_s": self.time_offset_start_s,
+            "start_s": None
+            if self.time_offset_start_s is None
+            else float(self.time_offset_start_s),
         }
         res = self.time_offset_resolution
         if res is not None:

@@ -53,5 +53,6 @@ def test_the_recipe_start_value_wins_over_the_reference_hint():
     on = TrainConfig(estimate_time_offset=True)
     assert offset_start_s(on, 0.05) == 0.05  # the gt-file clock check's hint
     assert offset_start_s(on.model_copy(update={"init_time_offset_s": 0.03}), 0.05) == 0.03
-    assert offset_start_s(TrainConfig(init_time_offset_s=0.03), 0.05) is None  # not estimated
+    off = TrainConfig(estimate_time_offset=False, init_time_offset_s=0.03)
+    assert offset_start_s(off, 0.05) is None  # not estimated
     assert offset_start_s(on, None) is None  # from 0

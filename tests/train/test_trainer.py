@@ -7,6 +7,7 @@ import torch
 from fakes import reference, tiny_sequence
 
 from l2calib.assess.sensitivity import probe
+from l2calib.assess.time_offset_probe import probe_evaluations
 from l2calib.errors import ConfigError, TrainingError
 from l2calib.pipeline import PreparedData
 from l2calib.recipe import Recipe
@@ -43,8 +44,10 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     refined = result.extra["refine"]  # the policy's mode, refined on the reward
     assert refined["refined_reward"] >= refined["policy_mode_reward"]
     n_refine = refined["evaluations"]
-    assert 1 + 6 * 12 <= n_refine <= 1 + 6 * 13  # default 6 rounds
-    assert result.evaluations == 3 * 8 + n_refine + len(probe(result.T_imu_lidar))  # + probe
+    assert result.time_offset_s is not None  # estimated by default: a 7th refined axis
+    assert 1 + 6 * 14 <= n_refine <= 1 + 6 * 15  # default 6 rounds
+    n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()  # + the offset's probe
+    assert result.evaluations == 3 * 8 + n_refine + n_probes
     assert len(result.resolution.rotation_deg) == 3
     assert result.reference_agreement["translation_m"] >= 0  # odometry vs reference at the result
     assert (tmp_path / "checkpoint.pt").is_file()
