@@ -42,7 +42,7 @@ def run_demo(reference: str, seed: int) -> dict:
         wall = time.monotonic() - t0
         if proc.returncode != 0:
             raise SystemExit(f"l2calib demo failed:\n{proc.stdout}\n{proc.stderr}")
-        T, _ = read_extrinsic(out / "calibration" / "calibration.yaml")
+        T = read_extrinsic(out / "calibration" / "calibration.yaml").T_imu_lidar.numpy()
         gt = yaml.safe_load((out / "simulated" / "extrinsic_gt.yaml").read_text())
         written = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
     T_true = np.asarray(gt["T_imu_lidar"])

@@ -2,8 +2,8 @@
 
 In the spirit of KISS-ICP's ``OdometryPipeline.run()``: :class:`Calibration` holds the recipe,
 the output directory and what each stage produced, so ``calibrate``, ``demo`` and the
-benchmarks run the same steps in the same order (``evaluate`` scores a given extrinsic and does
-not go through it yet). The CLI keeps argument parsing and the live
+benchmarks run the same steps in the same order, and ``evaluate`` scores given extrinsics with
+the same recipe (:meth:`Calibration.evaluate`). The CLI keeps argument parsing and the live
 display (it passes :class:`RunHooks`); nothing here prints.
 
 Stages:
@@ -16,6 +16,9 @@ Stages:
 * :meth:`Calibration.assess` gives the result its status and data summary
   (:mod:`l2calib.assess.status`).
 * :meth:`Calibration.write` writes the output directory (:mod:`l2calib.outputs.writer`).
+* :meth:`Calibration.evaluate` (instead of the four above) runs the odometry with given
+  extrinsics on whole sequences and compares it with the reference
+  (:mod:`l2calib.assess.evaluation`).
 
 A run whose data is too short or too still stops after ``prepare``: ``train`` is skipped and
 ``assess`` / ``write`` produce the ``not-calibrated`` result without an extrinsic.
@@ -228,6 +231,34 @@ class Calibration:
         self.assess()
         self.write(truth)
         return self.result
+
+    def evaluate(
+        self,
+        extrinsics: dict[str, Any],
+        bags: Sequence[Path] | None = None,
+        sequences: Sequence[Any] | None = None,
+    ):
+        """Scores given extrinsics: odometry APE against the reference on every whole sequence.
+
+        No selection and no training: each sequence is used whole, as a user would run the
+        odometry with the extrinsic (the backend's evaluation mode).
+
+        Args:
+            extrinsics: ``label -> Extrinsic`` (:class:`~l2calib.interfaces.Extrinsic`).
+            bags: Recordings to read (or ``sequences``).
+            sequences: In-memory :class:`~l2calib.data.Sequence` objects instead of bags.
+
+        Returns:
+            :class:`~l2calib.assess.evaluation.EvaluationRow` per sequence and extrinsic.
+        """
+        from l2calib.assess.evaluation import evaluate_extrinsics
+        from l2calib.pipeline import read_sequences
+
+        if sequences is None:
+            self.hooks.stage("reading recordings")
+            sequences = read_sequences(self.recipe, bags or [])
+        self.hooks.stage("running the odometry (own map, one continuous run per bag)")
+        return evaluate_extrinsics(self.recipe, sequences, extrinsics)
 
     def _tell_data(self) -> None:
         """Reports the reading warnings, the selection's notes and how much was selected."""

@@ -23,6 +23,7 @@ import torch
 from l2calib.assess.agreement import disagreement_warnings, finite_or_none
 from l2calib.assess.result import CalibrationResult
 from l2calib.errors import TrainingError
+from l2calib.interfaces import Extrinsic
 from l2calib.interrupt import Interrupted, stop_workers
 from l2calib.pipeline import PreparedData, time_offset_bound_s
 from l2calib.recipe import Recipe
@@ -178,11 +179,11 @@ def _add_trajectories(run: TrainedRun, env, before: np.ndarray) -> None:
     """Fills ``run.trajectories`` from the open env (a failure is noted, never raised)."""
     from l2calib.train.env_build import trajectory_previews
 
-    result = run.result
-    T = torch.from_numpy(np.stack([np.asarray(before, dtype=np.float64), result.matrix]))
+    after = run.result.extrinsic
+    T = torch.stack([torch.as_tensor(before, dtype=torch.float64), after.T_imu_lidar])
     offsets = None
-    if result.time_offset_s is not None:
-        offsets = torch.tensor([0.0, float(result.time_offset_s)], dtype=torch.float64)
+    if after.time_offset_s is not None:
+        offsets = torch.tensor([0.0, after.time_offset_s], dtype=torch.float64)
     try:
         previews = trajectory_previews(env, T, offsets)
     except Exception as exc:  # the report's extra must not lose the calibration
@@ -318,25 +319,23 @@ def _attempt(
         )
     say("training")
     outcome = trainer.run(progress)
-    mode = policy.mode()
-    T_mode, offset = mode.T_imu_lidar.detach().clone(), mode.time_offset_s
-    score = _Scorer(env, offset)
+    best = policy.mode()  # an Extrinsic from here to the result
+    best = Extrinsic(best.T_imu_lidar.detach().clone(), best.time_offset_s)
     refined = None
     if cfg.refine_rounds > 0:
         say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
         refined = refine(
-            score, T_mode, cfg.refine_rounds, cfg.refine_rot_step_deg, cfg.refine_trans_step_m,
-            offset_s=offset, offset_step_s=cfg.refine_offset_step_s,
+            _Scorer(env, best.time_offset_s), best, cfg.refine_rounds, cfg.refine_rot_step_deg,
+            cfg.refine_trans_step_m, offset_step_s=cfg.refine_offset_step_s,
         )  # fmt: skip
-        T_mode = torch.from_numpy(refined.T_imu_lidar)
-        if offset is not None:  # the offset was the refinement's seventh axis
-            offset = refined.time_offset_s
-            score = _Scorer(env, offset)
+        best = refined.extrinsic  # the offset was the refinement's seventh axis, if estimated
         log.info(
             "refine: reward %.5f -> %.5f, moved %.3f deg / %.2f cm (%d evaluations)",
             refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
             refined.evaluations,
         )  # fmt: skip
+    T_mode, offset = best.T_imu_lidar, best.time_offset_s
+    score = _Scorer(env, offset)
     say("probing the reward around the result (per-axis resolution)")
     candidates = sensitivity.probe(T_mode)
     resolution = sensitivity.resolve(score(candidates))
@@ -388,7 +387,7 @@ def _refine_summary(refined: Any) -> dict[str, Any]:
         "moved_m": round(refined.moved_m, 5),
         **(
             {"moved_time_offset_ms": round(1000 * refined.moved_offset_s, 3)}
-            if refined.time_offset_s is not None
+            if refined.extrinsic.time_offset_s is not None
             else {}
         ),
         "evaluations": int(refined.evaluations),

@@ -26,8 +26,8 @@ def test_round_trip_and_paste_ready_forms(tmp_path):
     result = CalibrationResult(_T(), resolution=res, undetermined=["rotation about LiDAR y"])
     path = write_calibration(tmp_path / "calibration.yaml", result)
     data = yaml.safe_load(path.read_text())
-    T, offset = read_extrinsic(path)
-    assert np.allclose(T, _T(), atol=1e-9) and offset is None
+    read = read_extrinsic(path)
+    assert np.allclose(read.T_imu_lidar.numpy(), _T(), atol=1e-9) and read.time_offset_s is None
     assert np.allclose(np.array(data["T_lidar_imu"]) @ _T(), np.eye(4), atol=1e-8)
     assert data["fast_lio"]["extrinsic_T"] == pytest.approx([0.12, -0.05, 0.08])
     assert np.allclose(np.reshape(data["fast_lio"]["extrinsic_R"], (3, 3)), _T()[:3, :3], atol=1e-8)
@@ -136,7 +136,7 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     )  # fmt: skip
     assert res.exit_code == 0, res.output
     assert "ground truth translation" in res.output and "demo finished" in res.output
-    T, _ = read_extrinsic(out / "calibration" / "calibration.yaml")
+    T = read_extrinsic(out / "calibration" / "calibration.yaml").T_imu_lidar
     assert T.shape == (4, 4) and (out / "simulated" / "gt_lidar.tum").is_file()
     written = yaml.safe_load((out / "calibration" / "calibration.yaml").read_text())
     # 2 iterations end far off: the agreement check fails and PPO starts once more

@@ -4,11 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 import yaml
 from typer.testing import CliRunner
 
+from l2calib.calibration import Calibration
 from l2calib.cli.app import app
-from l2calib.cli.cmd_evaluate import evaluate_extrinsics
+from l2calib.interfaces import Extrinsic
 from l2calib.recipe import load_recipe
 
 
@@ -46,12 +48,12 @@ def test_true_extrinsic_beats_a_wrong_one(sim_bag):
         "simulator", ["reference.name=gt-file", f"reference.options.path={files['gt_lidar']}"]
     )
     sequences = open_sequences([files["bag"]], recipe.data, auto_topics=False)
-    rows = evaluate_extrinsics(
-        recipe,
-        sequences,
-        {"true": (run.T_imu_lidar, None), "off": (_off(run.T_imu_lidar, 5, 10), None)},
-    )
-    ape = {label: res.rmse_t for label, _seg, res, _status in rows}
+    extrinsics = {
+        "true": Extrinsic(torch.from_numpy(run.T_imu_lidar)),
+        "off": Extrinsic(torch.from_numpy(_off(run.T_imu_lidar, 5, 10))),
+    }
+    rows = Calibration(recipe).evaluate(extrinsics, sequences=sequences)
+    ape = {row.label: row.ape.rmse_t for row in rows}
     assert ape["true"] < 0.05
     assert ape["off"] > 2 * ape["true"]
 

@@ -7,6 +7,7 @@ import torch
 
 from l2calib import geometry as geo
 from l2calib.assess.refine import refine
+from l2calib.interfaces import Extrinsic
 
 T_OPT = geo.se3_exp(torch.tensor([[0.3, -0.1, 0.2, 0.4, -0.2, 1.0]], dtype=torch.float64))[0]
 
@@ -33,8 +34,8 @@ def _errors(T) -> tuple[float, float]:
 def test_refine_moves_to_the_reward_optimum():
     score, calls = _bowl()
     start = T_OPT @ geo.se3_exp(torch.tensor([[0.03, -0.02, 0.025, 0.01, -0.012, 0.008]]))[0]
-    res = refine(score, start, rounds=8)
-    t_err, r_err = _errors(res.T_imu_lidar)
+    res = refine(score, Extrinsic(start), rounds=8)
+    t_err, r_err = _errors(res.extrinsic.T_imu_lidar)
     assert t_err < 0.005 and r_err < 0.1, (t_err, r_err)
     assert _errors(start)[0] > 0.03
     assert res.reward > res.start_reward
@@ -45,8 +46,9 @@ def test_refine_moves_to_the_reward_optimum():
 
 def test_refine_keeps_the_start_when_nothing_scores_higher():
     score, _ = _bowl()
-    res = refine(score, T_OPT, rounds=3, start_reward=1.0)
-    assert np.allclose(res.T_imu_lidar, T_OPT.numpy())
+    res = refine(score, Extrinsic(T_OPT), rounds=3, start_reward=1.0)
+    assert torch.allclose(res.extrinsic.T_imu_lidar, T_OPT)
+    assert res.extrinsic.time_offset_s is None
     assert res.reward == 1.0 and res.moved_m == 0.0 and res.moved_deg == 0.0
     assert res.history[-1][2] < 0.04  # steps halved while looking closer
 
@@ -55,8 +57,8 @@ def test_refine_does_not_move_on_a_flat_reward():
     def flat(T: torch.Tensor) -> torch.Tensor:
         return torch.full((T.shape[0],), 0.5, dtype=torch.float64)
 
-    res = refine(flat, T_OPT, rounds=2)
-    assert np.allclose(res.T_imu_lidar, T_OPT.numpy()) and res.reward == 0.5
+    res = refine(flat, Extrinsic(T_OPT), rounds=2)
+    assert torch.allclose(res.extrinsic.T_imu_lidar, T_OPT) and res.reward == 0.5
 
 
 def test_refine_climbs_the_time_offset_with_the_rotation():
@@ -73,10 +75,11 @@ def test_refine_climbs_the_time_offset_with_the_rotation():
         )
 
     start = T_OPT @ geo.se3_exp(torch.tensor([[0.01, 0.0, 0.0, 0.0, 0.0, 0.01]]))[0]
-    res = refine(score, start, rounds=10, offset_s=0.004)
-    t_err, r_err = _errors(res.T_imu_lidar)
-    assert abs(res.time_offset_s - offset_opt) < 0.0005 and r_err < 0.05, (res.time_offset_s, r_err)
+    res = refine(score, Extrinsic(start, 0.004), rounds=10)
+    t_err, r_err = _errors(res.extrinsic.T_imu_lidar)
+    off = res.extrinsic.time_offset_s
+    assert abs(off - offset_opt) < 0.0005 and r_err < 0.05, (off, r_err)
     assert res.moved_offset_s > 0.005 and res.evaluations <= 1 + 10 * 15
     # Without the seventh axis the rotation absorbs the offset's error instead.
-    held = refine(lambda T: score(T, torch.full((T.shape[0],), 0.004)), start, rounds=10)
-    assert _errors(held.T_imu_lidar)[1] > 0.5
+    held = refine(lambda T: score(T, torch.full((T.shape[0],), 0.004)), Extrinsic(start), rounds=10)
+    assert _errors(held.extrinsic.T_imu_lidar)[1] > 0.5

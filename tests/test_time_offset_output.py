@@ -48,7 +48,7 @@ def test_written_offset_carries_its_convention_and_pasteable_forms(tmp_path):
     assert data["fast_lio"]["time_offset_lidar_to_imu"] == 0.031
     assert data["fast_lio"]["time_sync_en"] is False
     assert data["li_init"]["time_lag_imu_to_lidar_s"] == 0.031
-    assert read_extrinsic(path)[1] == 0.031
+    assert read_extrinsic(path).time_offset_s == 0.031
     plain = yaml.safe_load(
         write_calibration(tmp_path / "p.yaml", CalibrationResult(np.eye(4))).read_text()
     )

@@ -13,9 +13,10 @@ reward from the mode, with a handful of batched backend calls:
 3. Keep the best of {the move, the best probe point, the current extrinsic}; halve the steps when
    nothing beat the current extrinsic (the optimum is within ±s).
 
-With a time offset (``offset_s``), the offset is a seventh axis of the same climb: rotation and
-offset trade off against each other on a rotating rig (a late IMU looks like a turned LiDAR), so
-polishing the rotation with the offset held at PPO's mode leaves both off.
+With a time offset (the start's ``time_offset_s`` is not ``None``), the offset is a seventh axis
+of the same climb: rotation and offset trade off against each other on a rotating rig (a late IMU
+looks like a turned LiDAR), so polishing the rotation with the offset held at PPO's mode leaves
+both off.
 
 Every accepted step scored strictly higher on the reward itself, so the result is never worse
 than the policy's mode on the training reward. Written here (not scipy.optimize) because each
@@ -32,6 +33,7 @@ import numpy as np
 import torch
 
 from l2calib import geometry as geo
+from l2calib.interfaces import Extrinsic
 
 __all__ = ["RefineResult", "refine"]
 
@@ -44,25 +46,24 @@ class RefineResult:
     """Outcome of :func:`refine`.
 
     Attributes:
-        T_imu_lidar: ``[4, 4]`` float64, the refined extrinsic.
+        extrinsic: The refined :class:`~l2calib.interfaces.Extrinsic` (its ``time_offset_s``
+            refined too when the start had one).
         reward: its reward.
         start_reward: reward of the starting extrinsic.
         evaluations: backend candidate evaluations used.
         moved_deg: rotation between start and result (deg).
         moved_m: translation between start and result (m).
         history: per round ``(reward, rotation step deg, translation step m)``.
-        time_offset_s: the refined time offset (s), or ``None`` when none was refined.
         moved_offset_s: how far the offset moved (s).
     """
 
-    T_imu_lidar: np.ndarray
+    extrinsic: Extrinsic
     reward: float
     start_reward: float
     evaluations: int
     moved_deg: float
     moved_m: float
     history: list[tuple[float, float, float]] = field(default_factory=list)
-    time_offset_s: float | None = None
     moved_offset_s: float = 0.0
 
 
@@ -88,31 +89,31 @@ def _vertex(r0: float, r_plus: np.ndarray, r_minus: np.ndarray) -> np.ndarray:
 
 def refine(
     score: Scorer,
-    T_start: np.ndarray | torch.Tensor,
+    start: Extrinsic,
     rounds: int = 4,
     rot_step_deg: float = 1.0,
     trans_step_m: float = 0.04,
     start_reward: float | None = None,
-    offset_s: float | None = None,
     offset_step_s: float = 0.002,
 ) -> RefineResult:
-    """Climbs the reward from ``T_start`` (module docstring).
+    """Climbs the reward from ``start`` (module docstring).
 
     Args:
-        score: Rewards ``[N]`` of extrinsics ``T_imu_lidar [N, 4, 4]`` (one batched call).
-        T_start: ``[4, 4]`` starting ``T_imu_lidar``.
+        score: Rewards ``[N]`` of extrinsics ``T_imu_lidar [N, 4, 4]`` (one batched call); with
+            a time offset ``score(T, offsets [N] s)``.
+        start: Where to start. Its ``time_offset_s`` is refined as a seventh axis unless it is
+            ``None`` (the extrinsic alone).
         rounds: Probe rounds (each ``12 + 1`` evaluations).
         rot_step_deg: First rotation step (deg); halves when a round finds nothing better.
         trans_step_m: First translation step (m); halves alike.
-        start_reward: Reward of ``T_start`` if already known (else one more evaluation).
-        offset_s: Starting time offset (s) to refine as a seventh axis (``score`` then takes
-            the offsets too), or ``None``: the extrinsic alone.
+        start_reward: Reward of ``start`` if already known (else one more evaluation).
         offset_step_s: First time-offset step (s); halves with the others.
 
     Returns:
-        The :class:`RefineResult`; ``T_imu_lidar`` is ``T_start`` if nothing scored higher.
+        The :class:`RefineResult`; its extrinsic is ``start`` if nothing scored higher.
     """
-    T0 = torch.as_tensor(np.asarray(T_start), dtype=torch.float64)
+    T0 = start.T_imu_lidar.detach().to(torch.float64)
+    offset_s = start.time_offset_s
     timed = offset_s is not None
 
     def at(T: torch.Tensor, off: float, xi: torch.Tensor) -> torch.Tensor:
@@ -150,14 +151,13 @@ def refine(
         history.append((r, float(np.degrees(steps[3])), float(steps[0])))
     d = geo.transform_inverse(T0) @ T
     return RefineResult(
-        T_imu_lidar=T.numpy(),
+        extrinsic=Extrinsic(T, float(off) if timed else None),
         reward=r,
         start_reward=float(start_reward),
         evaluations=evals,
         moved_deg=float(np.degrees(float(geo.rotation_angle(d[:3, :3])))),
         moved_m=float(d[:3, 3].norm()),
         history=history,
-        time_offset_s=float(off) if timed else None,
         moved_offset_s=float(abs(off - float(offset_s))) if timed else 0.0,
     )
 

@@ -17,6 +17,7 @@ import torch
 from l2calib import geometry as geo
 from l2calib.assess.status import NOT_CALIBRATED, UNRELIABLE
 from l2calib.errors import NotCalibratedError
+from l2calib.interfaces import Extrinsic
 
 
 @dataclass
@@ -69,6 +70,15 @@ class CalibrationResult:
                 fix="record the motion status_reasons asks for and calibrate again",
             )
         return np.asarray(self.T_imu_lidar, dtype=np.float64)
+
+    @property
+    def extrinsic(self) -> Extrinsic:
+        """The result as an :class:`~l2calib.interfaces.Extrinsic` (torch, with the offset).
+
+        Raises:
+            NotCalibratedError: if there is none (see :attr:`matrix`).
+        """
+        return Extrinsic(torch.from_numpy(self.matrix.copy()), self.time_offset_s)
 
     @property
     def rpy_deg(self) -> np.ndarray:

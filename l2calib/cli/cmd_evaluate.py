@@ -9,52 +9,6 @@ import typer
 _SET_HELP = "Override a recipe field, e.g. --set data.imu.topic=/imu (repeatable)."
 
 
-def evaluate_extrinsics(recipe, sequences, extrinsics: dict[str, tuple]):
-    """Runs the backend's evaluation mode with each extrinsic on every sequence.
-
-    For the LIO backends that is a continuous odometry with its own map and no re-anchoring
-    (the spec's ``evaluation`` options, :class:`~l2calib.plugins.PluginSpec`).
-
-    Args:
-        recipe: Recipe (topics, reference, backend options).
-        sequences: Sequences to evaluate on (each used whole).
-        extrinsics: ``label -> (T_imu_lidar [4,4], time_offset_s | None)``.
-
-    Returns:
-        Rows ``(label, segment, ApeResult | None, status)``.
-    """
-    import numpy as np
-    import torch
-
-    from l2calib.alignment import ape
-    from l2calib.pipeline import compute_references, kept_segments
-    from l2calib.plugins import get_plugin
-    from l2calib.trajectory import Trajectory
-
-    segments = [seq.segment() for seq in sequences]
-    references = compute_references(recipe, segments, sequences)
-    segments = kept_segments(segments, references)
-    spec = get_plugin("l2calib.backends", recipe.backend.name)
-    backend = spec.build({**recipe.backend.options, **spec.evaluation}, imu=recipe.data.imu)
-    backend.prepare(segments, references)
-    labels = list(extrinsics)
-    T = torch.from_numpy(np.stack([extrinsics[k][0] for k in labels]))
-    offsets = torch.tensor([extrinsics[k][1] or 0.0 for k in labels], dtype=torch.float64)
-    outputs = backend.evaluate(T, offsets)
-    rows = []
-    for out, ref in zip(outputs, references, strict=True):
-        for k, label in enumerate(labels):
-            valid = out.valid[k].numpy()
-            if valid.sum() < 3:
-                rows.append((label, out.segment, None, int(out.status[k])))
-                continue
-            est = Trajectory.from_matrices(
-                out.stamps_ns[valid], out.T_world_lidar[k][torch.from_numpy(valid)], "lidar"
-            )
-            rows.append((label, out.segment, ape(ref.trajectory, est), int(out.status[k])))
-    return rows
-
-
 def evaluate(
     extrinsic: Path = typer.Option(..., "--extrinsic", "-e", help="calibration.yaml to test."),
     bag: list[Path] = typer.Option(..., "--bag", "-b", help="Bag(s) to run the odometry on."),
@@ -74,6 +28,7 @@ def evaluate(
     from rich.console import Console
     from rich.table import Table
 
+    from l2calib.calibration import Calibration, RunHooks
     from l2calib.io.sequences import open_sequences
     from l2calib.outputs.calibration_file import read_extrinsic
     from l2calib.recipe import load_recipe
@@ -90,8 +45,8 @@ def evaluate(
     sequences = open_sequences(
         bag, rec.data, auto_topics=recipe is None, progress=console.is_terminal
     )
-    console.print("[cyan]•[/] running the odometry (own map, one continuous run per bag)")
-    rows = evaluate_extrinsics(rec, sequences, extrinsics)
+    run = Calibration(rec, hooks=RunHooks(stage=lambda msg: console.print(f"[cyan]•[/] {msg}")))
+    rows = run.evaluate(extrinsics, sequences=sequences)
     table = Table(
         title=f"odometry APE against the {rec.reference.name} reference", title_justify="left"
     )
@@ -105,8 +60,9 @@ def evaluate(
         "status",
     ):
         table.add_column(col)
-    for label, seg, res, status in rows:
-        state = ("ok", "diverged", "lost track", "failed")[status]
+    for row in rows:
+        label, seg, res = row.label, row.segment, row.ape
+        state = ("ok", "diverged", "lost track", "failed")[int(row.status)]
         if res is None:
             table.add_row(label, seg, "-", "-", "-", "0", state)
         else:

@@ -17,12 +17,17 @@ import yaml
 from l2calib import geometry as geo
 from l2calib.assess.status import NOT_CALIBRATED
 from l2calib.errors import DataError, NotCalibratedError
+from l2calib.interfaces import Extrinsic
 
 
-def read_extrinsic(path: str | Path) -> tuple[np.ndarray, float | None]:
+def read_extrinsic(path: str | Path) -> Extrinsic:
     """``T_imu_lidar`` (and time offset) from a calibration.yaml or an ``extrinsic_gt.yaml``.
 
     Accepts a 4×4 ``T_imu_lidar``, or ``translation_m`` with ``quaternion_xyzw`` or ``rpy_deg``.
+
+    Returns:
+        The :class:`~l2calib.interfaces.Extrinsic` (``time_offset_s`` ``None`` when the file
+        has none).
 
     Raises:
         NotCalibratedError: if the file's ``status`` is ``not-calibrated`` (it holds no
@@ -53,7 +58,8 @@ def read_extrinsic(path: str | Path) -> tuple[np.ndarray, float | None]:
     R = T[:3, :3]
     if not np.allclose(R.T @ R, np.eye(3), atol=1e-4) or np.linalg.det(R) < 0:
         raise DataError(f"{path}: the rotation of T_imu_lidar is not a proper rotation")
-    return T, (float(offset) if offset is not None else None)
+    offset_s = float(offset) if offset is not None else None
+    return Extrinsic(torch.from_numpy(np.ascontiguousarray(T)), offset_s)
 
 
 def read_status(path: str | Path) -> str | None:

@@ -104,7 +104,7 @@ def test_calibrates_a_handheld_bag_from_no_initial_guess(bag, backend, tmp_path)
     err_m, err_deg = _errors(result.T_imu_lidar, T_true)
     assert err_m <= TOLERANCE[0] and err_deg <= TOLERANCE[1], (100 * err_m, err_deg)
     # what the user reads is what was computed, and nothing warns on this well-excited run
-    T_file, _ = read_extrinsic(tmp_path / "out" / "calibration.yaml")
+    T_file = read_extrinsic(tmp_path / "out" / "calibration.yaml").T_imu_lidar.numpy()
     np.testing.assert_allclose(T_file, result.T_imu_lidar, atol=1e-6)
     assert not result.warnings and not result.undetermined
     written = yaml.safe_load((tmp_path / "out" / "calibration.yaml").read_text())
