@@ -178,12 +178,22 @@ def _pack(ijk: Tensor) -> Tensor:
     return (u[..., 0] << (2 * _AXIS_BITS)) | (u[..., 1] << _AXIS_BITS) | u[..., 2]
 
 
+#: Largest bounding box (voxels) of a frozen map indexed by a dense grid: 8 M int32 cells,
+#: 32 MB per process (a 400 m × 400 m × 50 m scene at 1 m voxels).
+MAX_DENSE_CELLS = 8_000_000
+
+
 class FrozenPlaneMap:
-    """A read-only plane map (one group) answered by binary search over sorted voxel keys.
+    """A read-only plane map (one group) answered by a dense index grid or by binary search.
 
     The shared map never changes after it is built, so instead of probing a hash table (slow
     when most queries miss, as they do for far-off candidates) every occupied voxel with a plane
-    is kept in a sorted int64 key array and looked up with ``torch.searchsorted``.
+    is kept in a sorted int64 key array. When the map's bounding box is small enough
+    (:data:`MAX_DENSE_CELLS`), a dense int32 grid maps each voxel of the box to its plane and a
+    lookup is one gather: written here because a per-scan ``torch.searchsorted`` over the keys
+    was a fifth of an odometry step (profile in ``docs/backends.md``) and neither torch nor
+    Open3D offers a batched read-only lookup that is faster. Larger maps keep the binary search.
+    Both answer exactly the same.
     """
 
     def __init__(self, source: VoxelPlaneMap, group: int = 0) -> None:
@@ -197,17 +207,38 @@ class FrozenPlaneMap:
         order = torch.argsort(packed)
         self._keys = packed[order].contiguous()
         self._planes = values[keep][order][:, _NRM.start : _D + 1].contiguous()  # n (3), d
+        self._grid: Tensor | None = None  # dense index of the bounding box, or None
+        ijk = keys[keep, 1:].to(torch.int64)[order]
+        if len(ijk):
+            lo, hi = ijk.min(0).values, ijk.max(0).values
+            dims = hi - lo + 1
+            if int(dims.prod()) <= MAX_DENSE_CELLS:
+                self._lo, self._dims = lo, dims
+                self._grid = torch.full((int(dims.prod()),), -1, dtype=torch.int32)
+                self._grid[self._linear(ijk - lo)] = torch.arange(len(ijk), dtype=torch.int32)
+
+    def _linear(self, rel: Tensor) -> Tensor:
+        """Row-major cell index of box-relative voxel coordinates ``[..., 3]``."""
+        return (rel[..., 0] * self._dims[1] + rel[..., 1]) * self._dims[2] + rel[..., 2]
 
     def __len__(self) -> int:
         return int(self._keys.shape[0])
 
     def _lookup(self, ijk: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        key = _pack(ijk)
         if len(self) == 0:
-            z = torch.zeros(*key.shape, 3, dtype=torch.float64)
-            return z, z[..., 0], torch.zeros(key.shape, dtype=torch.bool)
-        idx = torch.searchsorted(self._keys, key).clamp(max=len(self) - 1)
-        ok = self._keys[idx] == key
+            z = torch.zeros(*ijk.shape[:-1], 3, dtype=torch.float64)
+            return z, z[..., 0], torch.zeros(ijk.shape[:-1], dtype=torch.bool)
+        if self._grid is not None:
+            rel = ijk - self._lo
+            inside = ((rel >= 0) & (rel < self._dims)).all(-1)
+            cell = self._linear(torch.where(inside[..., None], rel, 0))
+            idx = self._grid[cell].to(torch.int64)
+            ok = inside & (idx >= 0)
+            idx = idx.clamp_min(0)
+        else:
+            key = _pack(ijk)
+            idx = torch.searchsorted(self._keys, key).clamp(max=len(self) - 1)
+            ok = self._keys[idx] == key
         plane = self._planes[idx] * ok[..., None]
         return plane[..., :3], plane[..., 3], ok
 

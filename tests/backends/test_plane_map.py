@@ -36,3 +36,25 @@ def test_neighbour_search_widens_the_basin():
     n, d, ok_wide = m.query(q, torch.tensor([0]), neighbours=True)
     assert not ok_plain.any() and ok_wide.all()
     np.testing.assert_allclose(((n * q).sum(-1) + d).abs().numpy(), 0.45, atol=1e-9)
+
+
+def test_frozen_map_dense_grid_answers_as_the_binary_search(monkeypatch):
+    """The dense index of a small frozen map and the sorted-key search give the same planes,
+    also for queries outside the map's bounding box and next to it (neighbour search)."""
+    from l2calib_backends import plane_map
+
+    rng = np.random.default_rng(2)
+    xy = rng.uniform(-6, 6, (30000, 2))
+    walls = np.column_stack([np.full(3000, 4.0), rng.uniform(-6, 6, (3000, 2))])
+    pts = torch.from_numpy(np.vstack([np.column_stack([xy, 0.1 * xy[:, 0]]), walls]))
+    source = VoxelPlaneMap(0.5)
+    source.insert(pts, torch.zeros(len(pts), dtype=torch.int64))
+    dense = plane_map.FrozenPlaneMap(source)
+    monkeypatch.setattr(plane_map, "MAX_DENSE_CELLS", 0)
+    search = plane_map.FrozenPlaneMap(source)
+    assert dense._grid is not None and search._grid is None
+    q = torch.from_numpy(rng.uniform(-9, 9, (4000, 3)))  # many outside the box
+    for neighbours in (False, True):
+        a, b = dense.query(q, neighbours=neighbours), search.query(q, neighbours=neighbours)
+        assert torch.equal(a[2], b[2]) and bool(a[2].any()) and not bool(a[2].all())
+        assert torch.equal(a[0], b[0]) and torch.equal(a[1], b[1])
