@@ -112,8 +112,11 @@ def rotation_errors_deg(T_gt: np.ndarray, T_est: np.ndarray) -> np.ndarray:
     return torch.rad2deg(geo.matrix_to_euler_rpy(R)).abs().numpy()
 
 
-def run_case(case: Case, train_seed: int) -> dict[str, Any]:
-    """Simulates the case's sequences and calibrates them; returns the row."""
+def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dict[str, Any]:
+    """Simulates the case's sequences and calibrates them; returns the row.
+
+    ``extra`` recipe overrides go after the case's own (e.g. the speed benchmark's settings).
+    """
     from l2calib.calibration import Calibration
     from l2calib.interfaces import ReferenceTrajectory
 
@@ -131,7 +134,7 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         for s in case.seeds
     ]
     overrides = [o for o in case.overrides if o != "reference.name=gt"]
-    recipe = load_recipe(case.recipe, [*overrides, f"train.seed={train_seed}"])
+    recipe = load_recipe(case.recipe, [*overrides, *(extra or []), f"train.seed={train_seed}"])
     sequences = [r.sequence() for r in runs]
     t0 = time.monotonic()
     exact = None
@@ -171,6 +174,8 @@ def run_case(case: Case, train_seed: int) -> dict[str, Any]:
         "r_err_deg": round(angle, 3),
         "wall_s": round(wall, 1),
         "evaluations": result.evaluations,
+        "candidate_scans": result.candidate_scans,
+        "stage_s": {k: round(v, 1) for k, v in result.stage_s.items()},
         "iterations": result.iterations,
         "stop": result.stop_reason,
         "status": result.status,

@@ -26,6 +26,7 @@ A run whose data is too short or too still stops after ``prepare``: ``train`` is
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -95,6 +96,7 @@ class Calibration:
         self.history: list[Any] = []  # PPO iteration records of the kept attempt
         self.trajectories: list[dict[str, Any]] = []  # before/after per segment, after train()
         self.problems: list[str] = []  # what failed in the report's extras (not the result)
+        self.stage_s: dict[str, float] = {}  # wall time of each stage (s), as they finish
 
     @property
     def stopped(self) -> bool:
@@ -122,19 +124,28 @@ class Calibration:
             stopped the run: see :attr:`stopped`).
         """
         from l2calib.assess.status import before_training
-        from l2calib.pipeline import add_references, select_data
+        from l2calib.pipeline import add_references, read_sequences, select_data
 
         say = self.hooks.stage
-        self.data = select_data(self.recipe, bags=bags, sequences=sequences, stage=say)
+        if sequences is None:
+            say("reading recordings")
+            clock = time.monotonic()
+            sequences = read_sequences(self.recipe, bags or [])
+            self.stage_s["reading"] = time.monotonic() - clock
+        clock = time.monotonic()
+        self.data = select_data(self.recipe, sequences=sequences, stage=say)
+        self.stage_s["selection"] = time.monotonic() - clock
         self._tell_data()
         self.verdict = before_training(self.data, self.recipe.selection)
         if self.stopped:
             self.hooks.skip_training()
             return self.data
+        clock = time.monotonic()
         if references is not None:
             self.data.references = references(self.data.segments)
         else:
             add_references(self.recipe, self.data, stage=say)
+        self.stage_s["reference"] = time.monotonic() - clock
         for note in self.data.notes:
             say(f"[yellow]note[/]: {note}")
         return self.data
@@ -168,6 +179,8 @@ class Calibration:
         )
         self.result, self.history = run.result, run.outcome.history
         self.trajectories, self.problems = run.trajectories, run.problems
+        self.stage_s.update(self.result.stage_s)
+        self.result.stage_s = self.stage_s  # one record of every stage, in order
         return self.result
 
     def assess(self):
@@ -189,6 +202,7 @@ class Calibration:
                 status=self.verdict.status,
                 status_reasons=self.verdict.reasons,
                 extra={"data": summary},
+                stage_s=self.stage_s,
             )
             return self.result
         verdict = assess(self.result, self.data, self.recipe.selection)
@@ -206,6 +220,7 @@ class Calibration:
         Returns:
             The written files by kind (none when ``out`` is ``None``).
         """
+        from l2calib.outputs.calibration_file import write_calibration
         from l2calib.outputs.writer import write_outputs, write_stopped_outputs
 
         if self.out is None:
@@ -213,10 +228,15 @@ class Calibration:
         if self.stopped:
             return write_stopped_outputs(self.out, self.recipe, self.result, self.data)
         self.hooks.stage("writing the report")
-        return write_outputs(
+        clock = time.monotonic()
+        files = write_outputs(
             self.out, self.recipe, self.result, self.history, self.data, truth=truth,
             trajectories=self.trajectories, problems=self.problems,
         )  # fmt: skip
+        # calibration.yaml (written first, so nothing is lost) again with the report's time
+        self.stage_s["report"] = time.monotonic() - clock
+        write_calibration(files["calibration"], self.result)
+        return files
 
     def run(
         self,

@@ -119,6 +119,25 @@ class OdometryBackend(ABC):
             bad candidate: that is reported in ``status`` and ``valid``; never returns NaN.
         """
 
+    def use_data_fraction(self, fraction: float) -> int:
+        """Runs the following :meth:`evaluate` calls on about ``fraction`` (0–1] of the data.
+
+        Optional (coarse-to-fine training): the trainer scores wide policies on a part of the
+        prepared data. Every candidate of one call must see the same part, and ``1.0`` must
+        restore all of it. A backend that cannot subsample keeps using everything.
+
+        Returns:
+            The number of measurements (scans) each candidate is estimated on from now on.
+        """
+        return self.measurements_per_candidate()
+
+    def measurements_per_candidate(self) -> int:
+        """Measurements (scans) each candidate is estimated on by :meth:`evaluate` now.
+
+        Used to count the work (``candidate_scans``); ``0`` when the backend does not say.
+        """
+        return 0
+
     def close(self) -> None:  # noqa: B027 - optional hook
         """Releases resources (worker pools, files). Optional."""
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Annotated, Any, Literal
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
 from l2calib.errors import ConfigError, PluginError
 
@@ -173,13 +173,61 @@ class TrainConfig(StrictModel):
         "largest divisor of candidates_per_iteration not above the CPUs this process may use",
     )
     checkpoint_every: int = Field(10, ge=1)
+    stop_on_plateau: bool = Field(
+        True,
+        description="end PPO when the best reward stops rising once the rotation is narrow; "
+        "the refinement finishes (l2calib.train.ppo)",
+    )
+    plateau_window: int = Field(10, ge=2, description="iterations per plateau comparison")
+    plateau_min_gain: float = Field(
+        0.005, ge=0, description="best-reward gain per window below which PPO stops"
+    )
+    plateau_rotation_sigma_deg: float = Field(
+        2.0, gt=0, description="largest rotation σ at which the plateau stop may fire"
+    )
+    handover_rotation_sigma_deg: float | None = Field(
+        2.5,
+        gt=0,
+        description="end PPO once every rotation σ is at most this (deg) and every "
+        "translation σ at most handover_translation_sigma_m; the refinement finishes; "
+        "null: never",
+    )
+    handover_translation_sigma_m: float = Field(
+        0.20, gt=0, description="translation σ (m) for handover_rotation_sigma_deg"
+    )
+    coarse_to_fine: bool = Field(
+        True,
+        description="score wide policies on a part of the data, all of it once narrow "
+        "(l2calib.train.coarse)",
+    )
+    coarse_data_fraction: float = Field(
+        0.25, gt=0, le=1, description="data fraction while the policy is at its widest"
+    )
+    coarse_min_data_s: float = Field(
+        3.0,
+        ge=0,
+        description="the coarse part holds at least this much data (s): on an 8 s recording, "
+        "2 s of it led PPO to a wrong rotation where 3 s did not",
+    )
+    coarse_rotation_sigma_deg: float = Field(
+        20.0, gt=0, description="rotation σ at and above which the coarsest fraction is used"
+    )
+    fine_rotation_sigma_deg: float = Field(
+        2.0, gt=0, description="rotation σ at and below which all the data is used"
+    )
+    coarse_translation_sigma_m: float = Field(
+        0.3, gt=0, description="translation σ at and above which the coarsest fraction is used"
+    )
+    fine_translation_sigma_m: float = Field(
+        0.03, gt=0, description="translation σ at and below which all the data is used"
+    )
     convergence_window: int = Field(15, ge=2, description="iterations the mode must stay put")
     converged_step_deg: float = Field(0.1, gt=0, description="largest mode move in the window")
     converged_step_m: float = Field(0.005, gt=0, description="largest mode move in the window")
     converged_rotation_sigma_deg: float = Field(0.5, gt=0, description="largest rotation sigma")
     converged_translation_sigma_m: float = Field(0.05, gt=0, description="largest trans. sigma")
     refine_rounds: int = Field(
-        6,
+        12,
         ge=0,
         description="after PPO, climb the reward from the policy's mode with this many batched "
         "probe rounds (13 evaluations each, 15 with the time offset; l2calib.assess.refine); "
@@ -196,6 +244,16 @@ class TrainConfig(StrictModel):
     refine_offset_step_s: float = Field(
         0.002, gt=0, description="first time-offset step of refine (s; with estimate_time_offset)"
     )
+
+    @model_validator(mode="after")
+    def _coarse_above_fine(self) -> TrainConfig:
+        for kind in ("rotation_sigma_deg", "translation_sigma_m"):
+            fine, coarse = getattr(self, f"fine_{kind}"), getattr(self, f"coarse_{kind}")
+            if fine >= coarse:
+                raise ValueError(
+                    f"train.fine_{kind}={fine} must be below train.coarse_{kind}={coarse}"
+                )
+        return self
 
     @property
     def iteration_budget(self) -> int:

@@ -12,6 +12,7 @@ resolution, :mod:`l2calib.assess.sensitivity`; the time offset's,
 from __future__ import annotations
 
 import logging
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -27,6 +28,7 @@ from l2calib.interfaces import Extrinsic
 from l2calib.interrupt import Interrupted, stop_workers
 from l2calib.pipeline import PreparedData, time_offset_bound_s
 from l2calib.recipe import Recipe
+from l2calib.train.coarse import set_data_fraction
 
 log = logging.getLogger("l2calib")
 
@@ -141,7 +143,10 @@ def train_policy(
     say = stage or (lambda _msg: None)
     _offset_from_rates(recipe, data, say)
     say(f"preparing the {recipe.backend.name} odometry")
+    t0 = time.monotonic()
     env = make_training_env(recipe, data.segments, data.references)
+    set_data_fraction(env, 1.0)  # starts the workers: each prepares its backend now
+    prepared_s = time.monotonic() - t0
     attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)
     k = 0
     try:  # the workers serve every attempt, its refinement and probe; down on any error
@@ -162,7 +167,10 @@ def train_policy(
                 f"(restart {k + 1} of at most {recipe.train.restarts})"
             )
         run = TrainedRun(*_keep_best(attempts))
+        run.result.stage_s = {"odometry_preparation": prepared_s, **run.result.stage_s}
+        t0 = time.monotonic()
         _add_trajectories(run, env, np.eye(4) if before is None else before)
+        run.result.stage_s["report_trajectories"] = time.monotonic() - t0
     except Interrupted as exc:
         stop_workers(env)  # they may be mid-batch: a polite close would wait for them
         env.__dict__["is_closed"] = True
@@ -260,6 +268,8 @@ def _keep_best(attempts: list[tuple[CalibrationResult, Any, int]]):
     best, outcome, _ = max(attempts, key=lambda a: a[0].final_reward)
     if len(attempts) > 1:
         best.evaluations = sum(r.evaluations for r, _, _ in attempts)
+        best.candidate_scans = sum(r.candidate_scans for r, _, _ in attempts)
+        best.stage_s = {k: sum(r.stage_s.get(k, 0.0) for r, _, _ in attempts) for k in best.stage_s}
         best.wall_time_s = sum(r.wall_time_s for r, _, _ in attempts)
         best.iterations = sum(r.iterations for r, _, _ in attempts)
         best.extra["attempts"] = [
@@ -297,6 +307,10 @@ def _attempt(
     from l2calib.train.ppo import PpoTrainer
 
     cfg = recipe.train.model_copy(update={"seed": seed})
+    data_s = sum(s.duration_s for s in data.segments)
+    if cfg.coarse_to_fine and data_s > 0:  # never fewer than coarse_min_data_s seconds
+        floor = min(1.0, cfg.coarse_min_data_s / data_s)
+        cfg = cfg.model_copy(update={"coarse_data_fraction": max(cfg.coarse_data_fraction, floor)})
     torch.manual_seed(seed)
     np.random.seed(seed)
     action_dim = int(env.action_spec.shape[-1])  # 8 with the time offset, else 7
@@ -318,7 +332,10 @@ def _attempt(
             f"from {out_dir / CHECKPOINT_NAME}"
         )
     say("training")
+    clock = time.monotonic()
     outcome = trainer.run(progress)
+    stage_s = {"training": time.monotonic() - clock}
+    clock = time.monotonic()
     best = policy.mode()  # an Extrinsic from here to the result
     best = Extrinsic(best.T_imu_lidar.detach().clone(), best.time_offset_s)
     refined = None
@@ -336,6 +353,8 @@ def _attempt(
         )  # fmt: skip
     T_mode, offset = best.T_imu_lidar, best.time_offset_s
     score = _Scorer(env, offset)
+    stage_s["refinement"] = time.monotonic() - clock
+    clock = time.monotonic()
     say("probing the reward around the result (per-axis resolution)")
     candidates = sensitivity.probe(T_mode)
     resolution = sensitivity.resolve(score(candidates))
@@ -347,8 +366,14 @@ def _attempt(
     if offset is not None:
         say("probing the reward along the time offset (its resolution)")
         offset_res = probe_time_offset(env, T_mode, offset)
+    stage_s["probe"] = time.monotonic() - clock
     unc = policy.uncertainty()
     sources = sorted({r.source for r in data.references})
+    after_training = (
+        candidates.shape[0]
+        + (refined.evaluations if refined else 0)
+        + (probe_evaluations() if offset_res else 0)
+    )  # all on the full data
     return CalibrationResult(
         T_imu_lidar=T_mode.numpy(),
         time_offset_s=offset,
@@ -356,10 +381,9 @@ def _attempt(
         translation_sigma_m=unc.translation_sigma_m.tolist(),
         time_offset_sigma_s=unc.time_offset_sigma_s,
         final_reward=resolution.reward,
-        evaluations=outcome.evaluations
-        + candidates.shape[0]
-        + (refined.evaluations if refined else 0)
-        + (probe_evaluations() if offset_res else 0),
+        evaluations=outcome.evaluations + after_training,
+        candidate_scans=outcome.candidate_scans + after_training * outcome.full_scans,
+        stage_s=stage_s,
         iterations=len(outcome.history),
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,

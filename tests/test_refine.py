@@ -83,3 +83,12 @@ def test_refine_climbs_the_time_offset_with_the_rotation():
     # Without the seventh axis the rotation absorbs the offset's error instead.
     held = refine(lambda T: score(T, torch.full((T.shape[0],), 0.004)), Extrinsic(start), rounds=10)
     assert _errors(held.extrinsic.T_imu_lidar)[1] > 0.5
+
+
+def test_refine_stops_once_every_step_is_finer_than_needed():
+    """At the optimum every round halves the steps: 4 cm and 1° fall below 1 mm and 0.025° after
+    six rounds, and the climb ends there instead of spending the other rounds."""
+    score, calls = _bowl()
+    res = refine(score, Extrinsic(T_OPT), rounds=20, start_reward=1.0)
+    assert len(res.history) == 6 and res.evaluations <= 6 * 13  # 12 probes + 1 move a round
+    assert res.history[-1][2] < 0.001

@@ -76,6 +76,6 @@ class GtsamBackend(LioBackend):
             self.settings, graph=replace(self.settings.graph, init_sigmas=sigmas)
         )
 
-    def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
+    def _run_segment(self, seg, motion, starts, T, off, seeds, ends=None) -> RunResult:  # noqa: ANN001
         """One prepared segment for all candidates, with the GTSAM loop."""
-        return run_segment_gtsam(seg, motion, starts, T, off, self.settings, self._map, seeds)
+        return run_segment_gtsam(seg, motion, starts, T, off, self.settings, self._map, seeds, ends)

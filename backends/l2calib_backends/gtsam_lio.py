@@ -86,12 +86,13 @@ def run_segment_gtsam(
     settings: GtsamRunSettings,
     shared_map: VoxelPlaneMap | FrozenPlaneMap | None,
     seeds: ScanTensors | None = None,
+    ends: list[int] | None = None,
 ) -> RunResult:
     """Runs K candidates over ``seg`` as K×W graphs, one per candidate and window.
 
     Same windows, arguments and outputs as :func:`l2calib_backends.iekf.run_segment`.
     """
-    batch = Batch.layout(starts, len(seg.end_t), T_imu_lidar, time_offset_s)
+    batch = Batch.layout(starts, len(seg.end_t), T_imu_lidar, time_offset_s, ends)
     dtype = T_imu_lidar.dtype
     state = initial_states(motion, T_imu_lidar, dict(settings.graph.init_sigmas, grav=1.0))
     state.P = torch.eye(DIM, dtype=dtype).repeat(batch.B, 1, 1) * 1e-6  # unused: graphs hold it

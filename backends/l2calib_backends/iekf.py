@@ -52,12 +52,13 @@ def run_segment(
     settings: RunSettings,
     shared_map: VoxelPlaneMap | FrozenPlaneMap | None,
     seeds: ScanTensors | None = None,
+    ends: list[int] | None = None,
 ) -> RunResult:
     """Runs K candidates over ``seg`` as K×W filters, one per candidate and window.
 
     Windows, maps and statuses: :func:`l2calib_backends.scan_loop.drive`.
     """
-    batch = Batch.layout(starts, len(seg.end_t), T_imu_lidar, time_offset_s)
+    batch = Batch.layout(starts, len(seg.end_t), T_imu_lidar, time_offset_s, ends)
     ok = int(CandidateStatus.OK)
 
     def step(x: StepInput) -> StepOutput:

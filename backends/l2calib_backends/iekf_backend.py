@@ -46,6 +46,6 @@ class IekfBackend(LioBackend):
         self.init_sigmas = sigmas
         self.settings = replace(self.settings, init_sigmas=sigmas)
 
-    def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
+    def _run_segment(self, seg, motion, starts, T, off, seeds, ends=None) -> RunResult:  # noqa: ANN001
         """One prepared segment for all candidates, with the IEKF loop."""
-        return run_segment(seg, motion, starts, T, off, self.settings, self._map, seeds)
+        return run_segment(seg, motion, starts, T, off, self.settings, self._map, seeds, ends)

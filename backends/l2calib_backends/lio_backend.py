@@ -17,6 +17,14 @@ import torch
 from l2calib.data import Segment
 from l2calib.errors import BackendError
 from l2calib.interfaces import CandidateTrajectories, OdometryBackend, ReferenceTrajectory
+from l2calib_backends.data_fraction import (
+    WindowPlan,
+    full_plan,
+    motion_subset,
+    plan_windows,
+    seeds_subset,
+    window_counts,
+)
 from l2calib_backends.iekf import RunResult
 from l2calib_backends.initialise import ReferenceMotion, reference_motion
 from l2calib_backends.options import AUTO_WINDOW_SCANS, LioOptions
@@ -67,6 +75,7 @@ class LioBackend(OdometryBackend):
         self._motions: list[ReferenceMotion] = []
         self._starts: list[list[int]] = []
         self._seeds: list = []
+        self._plans: list[WindowPlan] = []  # the windows evaluate() runs (use_data_fraction)
         self._map: VoxelPlaneMap | None = None
         if config.threads:
             torch.set_num_threads(config.threads)
@@ -107,6 +116,9 @@ class LioBackend(OdometryBackend):
             self.init_sigmas,
         )
         self._starts = [window_starts(len(s.measurements), self.window_scans) for s in segments]
+        self._plans = [
+            full_plan(st, len(p.end_t)) for st, p in zip(self._starts, self._segments, strict=True)
+        ]
         self._seeds = [None] * len(segments)
         if c.map_mode == "odometry":
             self._seeds = [
@@ -152,10 +164,13 @@ class LioBackend(OdometryBackend):
         )
         outputs = []
         with torch.no_grad():
-            for seg, motion, starts, seeds in zip(
-                self._segments, self._motions, self._starts, self._seeds, strict=True
+            for seg, motion, plan, seeds in zip(
+                self._segments, self._motions, self._plans, self._seeds, strict=True
             ):
-                res = self._run_segment(seg, motion, starts, T, off, seeds)
+                res = self._run_segment(
+                    seg, motion_subset(motion, plan.keep), plan.starts, T, off,
+                    seeds_subset(seeds, plan.keep), plan.ends,
+                )  # fmt: skip
                 outputs.append(
                     CandidateTrajectories(
                         segment=seg.name,
@@ -167,6 +182,31 @@ class LioBackend(OdometryBackend):
                 )
         return outputs
 
+    def use_data_fraction(self, fraction: float) -> int:
+        """Evaluates on about ``fraction`` of every segment; returns the scans per candidate.
+
+        Which windows or scans: :mod:`l2calib_backends.data_fraction`.
+        """
+        if not self._segments:
+            raise BackendError("use_data_fraction() called before prepare()", fix="call prepare()")
+        counts: list[int | None] = [None] * len(self._starts)
+        if self.window_scans > 0:  # windowed: count the windows over all segments together
+            counts = list(window_counts([len(st) for st in self._starts], float(fraction)))
+        self._plans = [
+            plan_windows(st, len(seg.end_t), float(fraction), count=n)
+            for st, seg, n in zip(self._starts, self._segments, counts, strict=True)
+        ]
+        return self.measurements_per_candidate()
+
+    def measurements_per_candidate(self) -> int:
+        """Scans each candidate is estimated on by :meth:`evaluate` now."""
+        return sum(plan.scans for plan in self._plans)
+
     @abstractmethod
-    def _run_segment(self, seg, motion, starts, T, off, seeds) -> RunResult:  # noqa: ANN001
-        """One prepared segment for all candidates ``T`` ``[K, 4, 4]`` with offsets ``off``."""
+    def _run_segment(  # noqa: ANN001
+        self, seg, motion, starts, T, off, seeds, ends=None
+    ) -> RunResult:
+        """One prepared segment for all candidates ``T`` ``[K, 4, 4]`` with offsets ``off``.
+
+        Windows start at ``starts`` and end at ``ends`` (default: each at the next start).
+        """

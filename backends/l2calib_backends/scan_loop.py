@@ -69,17 +69,29 @@ class Batch:
 
     @classmethod
     def layout(
-        cls, starts: list[int], num_scans: int, T_imu_lidar: Tensor, time_offset_s: Tensor
+        cls,
+        starts: list[int],
+        num_scans: int,
+        T_imu_lidar: Tensor,
+        time_offset_s: Tensor,
+        ends: list[int] | None = None,
     ) -> Batch:
-        """The layout for window ``starts`` over ``num_scans`` scans and K candidates."""
+        """The layout for window ``starts`` over ``num_scans`` scans and K candidates.
+
+        Window ``w`` estimates the scans after ``starts[w]`` up to ``ends[w]`` (default: up to
+        the next start, the last window up to the final scan); scans outside every window stay
+        invalid (a coarse evaluation: :mod:`l2calib_backends.data_fraction`).
+        """
         K, W = T_imu_lidar.shape[0], len(starts)
+        if ends is None:
+            ends = starts[1:] + [num_scans - 1]
         cand = torch.arange(K).repeat_interleave(W)
         return cls(
             K=K,
             W=W,
             N=num_scans,
             first=torch.tensor(starts).repeat(K),
-            last=torch.tensor(starts[1:] + [num_scans - 1]).repeat(K),
+            last=torch.tensor(ends).repeat(K),
             cand=cand,
             R_il=T_imu_lidar[cand, :3, :3],
             t_il=T_imu_lidar[cand, :3, 3],

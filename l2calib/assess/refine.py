@@ -95,6 +95,7 @@ def refine(
     trans_step_m: float = 0.04,
     start_reward: float | None = None,
     offset_step_s: float = 0.002,
+    min_steps: tuple[float, float, float] = (0.001, 0.025, 5e-5),
 ) -> RefineResult:
     """Climbs the reward from ``start`` (module docstring).
 
@@ -108,6 +109,9 @@ def refine(
         trans_step_m: First translation step (m); halves alike.
         start_reward: Reward of ``start`` if already known (else one more evaluation).
         offset_step_s: First time-offset step (s); halves with the others.
+        min_steps: ``(translation m, rotation deg, offset s)``: the climb ends before
+            ``rounds`` once every step has halved below these (finer than the result's
+            accuracy, so further rounds would only spend evaluations).
 
     Returns:
         The :class:`RefineResult`; its extrinsic is ``start`` if nothing scored higher.
@@ -131,8 +135,13 @@ def refine(
     steps = np.array(
         [trans_step_m] * 3 + [np.radians(rot_step_deg)] * 3 + ([offset_step_s] if timed else [])
     )
+    floor = np.array(
+        [min_steps[0]] * 3 + [np.radians(min_steps[1])] * 3 + ([min_steps[2]] if timed else [])
+    )
     history = []
     for _ in range(rounds):
+        if np.all(steps < floor):
+            break
         xi = torch.from_numpy(np.concatenate([np.diag(steps), -np.diag(steps)]))
         probe = at(T, off, xi).numpy()
         r_plus, r_minus = probe[:n], probe[n:]

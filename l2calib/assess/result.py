@@ -38,8 +38,14 @@ class CalibrationResult:
     time_offset_start_s: float | None = None
     final_reward: float | None = None
     evaluations: int = 0
+    # Σ over every odometry evaluation of the scans it estimated (the work; coarse-to-fine
+    # iterations use a part of the data)
+    candidate_scans: int = 0
     iterations: int = 0
     wall_time_s: float = 0.0
+    # wall time (s) of each stage: reading, selection, reference, odometry_preparation,
+    # training, refinement, probe, report_trajectories, report
+    stage_s: dict[str, float] = field(default_factory=dict)
     stop_reason: str = ""
     undetermined: list[str] = field(default_factory=list)
     resolution: Any | None = None  # l2calib.assess.sensitivity.AxisResolution
@@ -100,9 +106,11 @@ class CalibrationResult:
         training = {
             "final_reward": None if self.final_reward is None else round(self.final_reward, 6),
             "evaluations": int(self.evaluations),
+            "candidate_scans": int(self.candidate_scans),
             "iterations": int(self.iterations),
             "wall_time_s": round(float(self.wall_time_s), 1),
             "stop_reason": self.stop_reason,
+            "stage_s": {k: round(float(v), 1) for k, v in self.stage_s.items()},
         }
         if self.stopped_before_training:  # no extrinsic in any form, nothing to paste
             return {**head, "training": training, **self.extra}

@@ -6,8 +6,26 @@ from typing import Any
 
 from rich.console import Console, Group
 from rich.live import Live
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from rich.progress import (
+    BarColumn,
+    MofNCompleteColumn,
+    Progress,
+    TextColumn,
+    TimeElapsedColumn,
+)
 from rich.table import Table
+
+
+def eta_text(record: Any, iterations: int) -> str:
+    """``"≤ 1 min 20 s left"``: the budget's remaining iterations at the pace so far.
+
+    An upper bound: PPO may stop earlier (converged, reward plateau), and coarse-to-fine
+    iterations get slower as they use more of the data.
+    """
+    done = record.iteration + 1
+    left = max(iterations - done, 0) * record.wall_s / max(done, 1)
+    minutes, seconds = divmod(int(round(left)), 60)
+    return f"≤ {minutes} min {seconds:02d} s left" if minutes else f"≤ {seconds} s left"
 
 
 class CalibrationDisplay:
@@ -15,14 +33,16 @@ class CalibrationDisplay:
 
     def __init__(self, console: Console, iterations: int) -> None:
         self.console = console
+        self.iterations = iterations
         self.progress = Progress(
             TextColumn("[bold]{task.description}"),
             BarColumn(),
             MofNCompleteColumn(),
             TimeElapsedColumn(),
+            TextColumn("{task.fields[eta]}"),
             console=console,
         )
-        self.task = self.progress.add_task("training", total=iterations)
+        self.task = self.progress.add_task("training", total=iterations, eta="")
         self.table = Table.grid(padding=(0, 2))
         self.live = Live(Group(self.progress), console=console, refresh_per_second=4,
                          transient=False)  # fmt: skip
@@ -54,7 +74,8 @@ class CalibrationDisplay:
                     f"  iteration {record.iteration + 1}: evaluations {record.evaluations}, "
                     f"reward mean {record.reward_mean:.4f} best {record.reward_max:.4f}, "
                     f"t [{t}] cm, rpy [{rpy}] deg, max σ {max(record.rotation_sigma_deg):.2f} deg "
-                    f"{100 * max(record.translation_sigma_m):.1f} cm",
+                    f"{100 * max(record.translation_sigma_m):.1f} cm, "
+                    f"data {100 * record.data_fraction:.0f} %, {eta_text(record, self.iterations)}",
                     highlight=False,
                 )
             return
@@ -73,7 +94,11 @@ class CalibrationDisplay:
         )
         if record.time_offset_s is not None:
             summary += f"  time offset {1000 * record.time_offset_s:+.2f} ms"
+        if record.data_fraction < 1.0:
+            summary += f"  data {100 * record.data_fraction:.0f} %"
         if record.lost or record.diverged:
             summary += f"  lost {record.lost} diverged {record.diverged}"
-        self.progress.update(self.task, completed=record.iteration + 1)
+        self.progress.update(
+            self.task, completed=record.iteration + 1, eta=eta_text(record, self.iterations)
+        )
         self.live.update(Group(self.progress, summary, table))

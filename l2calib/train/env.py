@@ -199,6 +199,17 @@ class CalibrationEnv(ScoringEnv):
         self.evaluations += int(T_imu_lidar.shape[0])
         return breakdown, status
 
+    def use_data_fraction(self, fraction: float) -> int:
+        """Scores the following steps on about ``fraction`` of the data (coarse-to-fine).
+
+        Every candidate of a step sees the same part (the backend's
+        :meth:`~l2calib.interfaces.OdometryBackend.use_data_fraction`); ``1.0`` restores all.
+
+        Returns:
+            Scans each candidate is now estimated on (0 when the backend does not say).
+        """
+        return int(self.backend.use_data_fraction(float(fraction)))
+
     def score_share(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int
     ):

@@ -92,7 +92,8 @@ def run_toy_ppo(
         seed: Seeds the actor's sampler.
         options: Plugin options.
         **train: Other ``train`` recipe fields (``lr``, ``ppo_epochs``, ...); the production
-            defaults otherwise.
+            defaults otherwise, except the early stops that hand over to the refinement
+            (the toy has none: PPO alone must converge here).
 
     Returns:
         The history of the mode's errors, mean reward and rotation σ per iteration.
@@ -107,7 +108,7 @@ def run_toy_ppo(
         max_iterations=iterations,
         max_evaluations=iterations * candidates,
         workers=1,
-        **train,
+        **{"handover_rotation_sigma_deg": None, "stop_on_plateau": False, **train},
     )
     policy = get_plugin("l2calib.policies", policy_name).build(
         options or {}, action_dim=7, prior=None, seed=seed

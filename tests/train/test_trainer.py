@@ -45,7 +45,7 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     assert refined["refined_reward"] >= refined["policy_mode_reward"]
     n_refine = refined["evaluations"]
     assert result.time_offset_s is not None  # estimated by default: a 7th refined axis
-    assert 1 + 6 * 14 <= n_refine <= 1 + 6 * 15  # default 6 rounds
+    assert 1 + 12 * 14 <= n_refine <= 1 + 12 * 15  # default 12 rounds
     n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()  # + the offset's probe
     assert result.evaluations == 3 * 8 + n_refine + n_probes
     assert len(result.resolution.rotation_deg) == 3
