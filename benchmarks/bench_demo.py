@@ -71,6 +71,9 @@ def run_demo(reference: str, seed: int, overrides: list[str] | None = None) -> d
         "iterations": written.get("training", {}).get("iterations"),
         "stop": written.get("training", {}).get("stop_reason"),
         "stage_s": written.get("training", {}).get("stage_s"),
+        # what docs/design.md quotes: the refinement's move, the policy's σ, the resolution
+        "refine": written.get("refine"),
+        "uncertainty": written.get("uncertainty"),
         "warnings": written.get("uncertainty", {}).get("warnings", []),
         "machine": machine_info(),
     }
