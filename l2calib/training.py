@@ -145,11 +145,11 @@ def train_policy(
     say(f"preparing the {recipe.backend.name} odometry")
     t0 = time.monotonic()
     env = make_training_env(recipe, data.segments, data.references)
-    set_data_fraction(env, 1.0)  # starts the workers: each prepares its backend now
-    prepared_s = time.monotonic() - t0
     attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)
     k = 0
     try:  # the workers serve every attempt, its refinement and probe; down on any error
+        set_data_fraction(env, 1.0)  # starts the workers: each prepares its backend now
+        prepared_s = time.monotonic() - t0
         for k in range(recipe.train.restarts + 1):
             seed = recipe.train.seed + k * RESTART_SEED_STRIDE
             sub = out_dir if out_dir is None or k == 0 else out_dir / f"restart-{k}"
