@@ -75,6 +75,7 @@ class InterruptContext:
 
 
 _ACTIVE: InterruptContext | None = None
+_HELD: list[int] | None = None  # signals received inside held(), raised as it ends
 
 
 def _in_child() -> None:
@@ -93,9 +94,36 @@ def _handler(signum: int, _frame) -> None:
         if signum == signal.SIGTERM:
             os._exit(128 + signum)
         return
+    if _HELD is not None:  # inside held(): raised as the block ends
+        _HELD.append(signum)
+        return
     for s in _SIGNALS:  # a second signal while cleaning up: leave at once
         signal.signal(s, _force_exit)
     raise Interrupted(signum)
+
+
+@contextmanager
+def held() -> Iterator[None]:
+    """Holds SIGINT / SIGTERM back during a short computation, raising them as it ends.
+
+    For code that must not be torn mid-way: an exception raised inside a library's context
+    manager can come out as another one (TorchRL's PPO loss turned an :class:`Interrupted` into
+    a ``RuntimeError``, so the run ended with a traceback instead of its checkpoint and resume
+    line). Only for blocks of well under a second (a PPO update), so Ctrl-C stays prompt.
+    """
+    global _HELD
+    if _HELD is not None:  # nested: the outer block raises
+        yield
+        return
+    _HELD = []
+    try:
+        yield
+    finally:
+        pending, _HELD = _HELD, None
+    if pending:
+        for s in _SIGNALS:  # a second signal while cleaning up: leave at once
+            signal.signal(s, _force_exit)
+        raise Interrupted(pending[0])
 
 
 def _force_exit(signum: int, _frame) -> None:

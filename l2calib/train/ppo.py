@@ -21,7 +21,7 @@ from typing import Any
 import torch
 
 from l2calib import geometry as geo
-from l2calib.interrupt import Interrupted
+from l2calib.interrupt import Interrupted, held
 from l2calib.recipe import TrainConfig
 from l2calib.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
 from l2calib.train.coarse import data_fraction, set_data_fraction
@@ -341,7 +341,8 @@ class PpoTrainer:
             fraction = data_fraction(self.policy.uncertainty(), self.cfg)
             scans = set_data_fraction(self.env, fraction)
             batch = next(collector_iter).reshape(-1)
-            losses = self._update(batch, it)
+            with held():  # a signal here would come out of TorchRL's loss as another error
+                losses = self._update(batch, it)
             self.collector.update_policy_weights_()
             self.outcome.evaluations += int(batch.numel())
             self.outcome.candidate_scans += int(batch.numel()) * scans

@@ -65,3 +65,20 @@ def test_a_narrow_policy_hands_over_to_the_refinement():
     wide_t = TrainConfig(handover_rotation_sigma_deg=1.5, handover_translation_sigma_m=0.04)
     assert _narrow_enough([narrow], wide_t) is None
     assert _narrow_enough([narrow], TrainConfig(handover_rotation_sigma_deg=None)) is None
+
+
+def test_a_signal_inside_a_held_block_is_raised_as_the_block_ends():
+    """The PPO update runs inside ``held()``: a Ctrl-C there must surface as ``Interrupted``
+    after the update, not as whatever a library turns it into mid-way."""
+    import os
+    import signal
+
+    import pytest
+
+    from l2calib.interrupt import Interrupted, handling, held
+
+    done = []
+    with pytest.raises(Interrupted) as info, handling(), held():
+        os.kill(os.getpid(), signal.SIGINT)
+        done.append("the rest of the block ran")
+    assert done and info.value.signum == signal.SIGINT
