@@ -28,7 +28,7 @@ from l2calib.interfaces import Extrinsic
 from l2calib.interrupt import Interrupted, stop_workers
 from l2calib.pipeline import PreparedData, time_offset_bound_s
 from l2calib.recipe import Recipe
-from l2calib.train.coarse import set_data_fraction
+from l2calib.train.env_build import set_data_fraction
 
 log = logging.getLogger("l2calib")
 

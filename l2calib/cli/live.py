@@ -19,8 +19,8 @@ from rich.table import Table
 def eta_text(record: Any, iterations: int) -> str:
     """``"≤ 1 min 20 s left"``: the budget's remaining iterations at the pace so far.
 
-    An upper bound: PPO may stop earlier (converged, reward plateau), and coarse-to-fine
-    iterations get slower as they use more of the data.
+    "≤" because PPO usually stops before its budget (hand-over, plateau, convergence); the pace
+    is an average, and coarse-to-fine iterations get slower as they use more of the data.
     """
     done = record.iteration + 1
     left = max(iterations - done, 0) * record.wall_s / max(done, 1)

@@ -8,7 +8,8 @@ policy's spread (not the iteration count), so a slow run stays coarse only while
 the larger of the two decides, and the fraction is ``f_min + (1 - f_min)·(1 - u)``: all the data
 once every σ is at or below its ``fine`` level, ``train.coarse_data_fraction`` at or above
 ``coarse``. Which part is used is the backend's choice, the same for every candidate of an
-iteration (:meth:`~l2calib.interfaces.OdometryBackend.use_data_fraction`).
+iteration (:meth:`~l2calib.interfaces.OdometryBackend.use_data_fraction`, sent to every worker
+by :func:`l2calib.train.env_build.set_data_fraction`).
 """
 
 from __future__ import annotations
@@ -42,22 +43,3 @@ def data_fraction(spread: PolicySpread, cfg: TrainConfig) -> float:
     )
     f_min = cfg.coarse_data_fraction
     return f_min + (1.0 - f_min) * (1.0 - max(u_r, u_t))
-
-
-def set_data_fraction(env, fraction: float) -> int:
-    """Tells a training env (one ``CalibrationEnv`` or a ``ParallelEnv`` of them) the fraction.
-
-    Returns:
-        Scans each candidate is now estimated on (0 for an env that does not subsample, e.g.
-        the policies' toy problem).
-    """
-    from l2calib.train.env import CalibrationEnv
-
-    if isinstance(env, CalibrationEnv):
-        return env.use_data_fraction(fraction)
-    if not hasattr(env, "num_workers"):  # another ScoringEnv: always all of its data
-        return 0
-    if env.is_closed:  # built but not started yet (workers start on first use)
-        env.start()
-    counts = env.use_data_fraction(fraction)  # the same call in every worker
-    return int(counts[0])

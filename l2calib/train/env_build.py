@@ -112,6 +112,33 @@ def make_training_env(
     )
 
 
+def _started(env):
+    """An open ``ParallelEnv``: one built but not yet used is started (workers start lazily)."""
+    if env.is_closed:
+        env.start()
+    return env
+
+
+def set_data_fraction(env, fraction: float) -> int:
+    """Tells a training env (one ``CalibrationEnv`` or a ``ParallelEnv`` of them) the fraction.
+
+    Coarse-to-fine training (:mod:`l2calib.train.coarse`): every worker's backend evaluates on
+    the same part of the data from now on.
+
+    Returns:
+        Scans each candidate is now estimated on (0 for an env that does not subsample, e.g.
+        the policies' toy problem).
+    """
+    from l2calib.train.env import CalibrationEnv
+
+    if isinstance(env, CalibrationEnv):
+        return env.use_data_fraction(fraction)
+    if not hasattr(env, "num_workers"):  # another ScoringEnv: always all of its data
+        return 0
+    counts = _started(env).use_data_fraction(fraction)  # the same call in every worker
+    return int(counts[0])
+
+
 def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None):
     """Scores ``N`` candidates of any ``N`` on a training env, spread over its workers.
 
@@ -134,10 +161,8 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
 
     if isinstance(env, CalibrationEnv):
         return env.score_candidates(T_imu_lidar, time_offset_s)[0]
-    if env.is_closed:  # built but not started yet (workers start on first use)
-        env.start()
     n = env.num_workers
-    parts = [breakdown for breakdown, _ in env.score_share(T_imu_lidar, time_offset_s, n)]
+    parts = [breakdown for breakdown, _ in _started(env).score_share(T_imu_lidar, time_offset_s, n)]
     merged = {}
     for f in fields(RewardBreakdown):
         first = getattr(parts[0], f.name)
@@ -164,10 +189,8 @@ def trajectory_previews(
 
     if isinstance(env, CalibrationEnv):
         return env.trajectory_share(T_imu_lidar, time_offset_s, 1)
-    if env.is_closed:
-        env.start()
     n = env.num_workers
-    shares = env.trajectory_share(T_imu_lidar, time_offset_s, n)
+    shares = _started(env).trajectory_share(T_imu_lidar, time_offset_s, n)
     merged = []
     for j, first in enumerate(shares[0]):
         positions = np.empty((T_imu_lidar.shape[0], *first["positions"].shape[1:]))

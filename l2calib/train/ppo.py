@@ -24,7 +24,8 @@ from l2calib import geometry as geo
 from l2calib.interrupt import Interrupted, held
 from l2calib.recipe import TrainConfig
 from l2calib.train.checkpoint import CHECKPOINT_NAME, load_checkpoint, save_checkpoint
-from l2calib.train.coarse import data_fraction, set_data_fraction
+from l2calib.train.coarse import data_fraction
+from l2calib.train.env_build import set_data_fraction
 
 
 @dataclass
@@ -191,6 +192,8 @@ class PpoTrainer:
         self.outcome = TrainOutcome()
         self._saved_iterations: int | None = None  # iterations in the checkpoint on disk
         self._snapshot: dict[str, Any] | None = None  # the state after the last iteration
+        self._fraction: float | None = None  # the data fraction the env scores on now
+        self._scans = 0  # scans per candidate at that fraction
         self._logger = None
         if out_dir is not None:
             from torchrl.record.loggers.csv import CSVLogger
@@ -339,7 +342,9 @@ class PpoTrainer:
                 self.outcome.stop_reason = early
                 break
             fraction = data_fraction(self.policy.uncertainty(), self.cfg)
-            scans = set_data_fraction(self.env, fraction)
+            if fraction != self._fraction:  # one round trip to the workers when it changes
+                self._fraction, self._scans = fraction, set_data_fraction(self.env, fraction)
+            scans = self._scans
             batch = next(collector_iter).reshape(-1)
             with held():  # a signal here would come out of TorchRL's loss as another error
                 losses = self._update(batch, it)
@@ -364,6 +369,7 @@ class PpoTrainer:
         self.checkpoint()
         # what follows (refinement, probes) sees all the data
         self.outcome.full_scans = set_data_fraction(self.env, 1.0)
+        self._fraction = None
         # The env stays open: the refinement and the probe score on its workers; its owner
         # closes it.
         self.collector.shutdown(close_env=False)
