@@ -174,9 +174,10 @@ class TrainConfig(StrictModel):
     )
     checkpoint_every: int = Field(10, ge=1)
     stop_on_plateau: bool = Field(
-        True,
+        False,
         description="end PPO when the best reward stops rising once the rotation is narrow; "
-        "the refinement finishes (l2calib.train.ppo)",
+        "the refinement finishes (l2calib.train.ppo). Off by default: it fired only on weakly "
+        "excited data, and there PPO's reward was still short of the optimum (docs/design.md)",
     )
     plateau_window: int = Field(10, ge=2, description="iterations per plateau comparison")
     plateau_min_gain: float = Field(

@@ -10,8 +10,15 @@ comparable.
   evenly over each segment (not its first stretch: the excitation varies along a recording).
   The count is decided over all segments together (:func:`window_counts`), so a fraction of a
   few short segments is not rounded up per segment; every segment keeps at least one window.
-* **One continuous run** per segment (weakly excited data): the run stops after its first
-  ``fraction`` of the scans (at least ``min_scans``), since there is no window to leave out.
+* **One continuous run** per segment (weakly excited data): all of it, whatever the fraction.
+  On weakly excited data the information is spread along the drive (a yaw turn grades the lever
+  arm, an acceleration on a straight the yaw of the extrinsic) and no part ranks candidates like
+  the whole: scored on each drive's first quarter, a simulated ground-vehicle run came out
+  0.83° off instead of 0.46° (``benchmarks/results/speed.json``, ugv seed 2); on its most
+  turning quarter PPO settled 50° off in yaw with a 1.8 m lever arm that explains the turn
+  (``benchmarks/results/experiments/speed_weak_stretch.json``); how well a part ranks depends
+  on where it lies (``benchmarks/bench_coarse_ranking.py``). Such runs save work only through
+  the early stops (``docs/design.md``).
 """
 
 from __future__ import annotations
@@ -69,11 +76,7 @@ def window_counts(windows: list[int], fraction: float) -> list[int]:
 
 
 def plan_windows(
-    starts: list[int],
-    num_scans: int,
-    fraction: float,
-    min_scans: int = 20,
-    count: int | None = None,
+    starts: list[int], num_scans: int, fraction: float, count: int | None = None
 ) -> WindowPlan:
     """The windows for about ``fraction`` (0–1] of a segment's scans (module docstring).
 
@@ -81,15 +84,11 @@ def plan_windows(
     """
     full = full_plan(starts, num_scans)
     W = len(starts)
-    if fraction >= 1.0 or (count is not None and count >= W):
-        return full
-    if W > 1:
-        n = count if count is not None else max(1, min(W, round(fraction * W)))
-        keep = sorted({min(W - 1, int((i + 0.5) * W / n)) for i in range(n)})
-        return WindowPlan([full.starts[w] for w in keep], [full.ends[w] for w in keep], keep)
-    span = full.ends[0] - full.starts[0]
-    scans = min(span, max(min_scans, math.ceil(fraction * span)))
-    return WindowPlan([full.starts[0]], [full.starts[0] + scans], [0])
+    if fraction >= 1.0 or W == 1 or (count is not None and count >= W):
+        return full  # one continuous run: all of it (module docstring)
+    n = count if count is not None else max(1, min(W, round(fraction * W)))
+    keep = sorted({min(W - 1, int((i + 0.5) * W / n)) for i in range(n)})
+    return WindowPlan([full.starts[w] for w in keep], [full.ends[w] for w in keep], keep)
 
 
 def motion_subset(motion: ReferenceMotion, keep: list[int]) -> ReferenceMotion:

@@ -326,6 +326,10 @@ class PpoTrainer:
         t_start = time.monotonic() - self.outcome.wall_s
         it = len(self.outcome.history)
         collector_iter = iter(self.collector)
+        # Scans per candidate on all the data: the share an iteration scored on is the backend's
+        # answer over this, not the fraction asked (a continuous run always uses all of it).
+        full = set_data_fraction(self.env, 1.0)
+        self._fraction, self._scans = 1.0, full
         while True:
             if it >= self.iterations:
                 self.outcome.stop_reason = (
@@ -352,7 +356,8 @@ class PpoTrainer:
             self.outcome.evaluations += int(batch.numel())
             self.outcome.candidate_scans += int(batch.numel()) * scans
             record = self._record(it, batch, losses, time.monotonic() - t_start)
-            record.data_fraction, record.candidate_scans = fraction, int(batch.numel()) * scans
+            record.data_fraction = scans / full if full > 0 else 1.0
+            record.candidate_scans = int(batch.numel()) * scans
             self.outcome.history.append(record)
             self.outcome.wall_s = record.wall_s
             if self._logger is not None:

@@ -188,3 +188,21 @@ def test_auto_workers_divide_the_batch(monkeypatch):
     monkeypatch.setattr(env_build.os, "sched_getaffinity", lambda _pid: {0})
     assert env_build.resolve_workers(32, "auto") == 1
     assert Recipe.model_validate({}).train.workers == "auto"
+
+
+def test_the_recorded_data_share_is_what_the_backend_scored(fake_backend_env, monkeypatch):
+    """A backend that keeps all its data when asked for less (a continuous odometry run) is
+    recorded at 100 %, so the plateau stop, which waits for all the data, may end such a run."""
+    from fakes import FakeBackend
+
+    asked = []
+
+    def use_data_fraction(self, fraction):
+        asked.append(fraction)
+        return 40  # all of it, whatever the fraction
+
+    monkeypatch.setattr(FakeBackend, "use_data_fraction", use_data_fraction, raising=False)
+    _, outcome = _run(_recipe(coarse_to_fine=True, max_iterations=2, workers=1))
+    assert any(f < 1.0 for f in asked)  # the trainer asked for a part (the policy is wide)
+    assert [r.data_fraction for r in outcome.history] == [1.0, 1.0]
+    assert [r.candidate_scans for r in outcome.history] == [8 * 40, 8 * 40]
