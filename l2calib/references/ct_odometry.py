@@ -130,7 +130,7 @@ class CtLidarOdometry(TrackingChecks):
         if o.isolated_ratio > 0 and len(p) > 1:
             # Spurious returns (dust, mixed pixels) lie in free space, away from every other
             # return; each would also take a voxel of its own in the samples and the map.
-            near, _ = cKDTree(p).query(p, k=2)
+            near, _ = cKDTree(p).query(p, k=2, workers=-1)  # all cores: the same answer
             keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
             p, tau = p[keep], tau[keep]
             ring = None if ring is None else ring[keep]
