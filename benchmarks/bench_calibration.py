@@ -112,15 +112,9 @@ def rotation_errors_deg(T_gt: np.ndarray, T_est: np.ndarray) -> np.ndarray:
     return torch.rad2deg(geo.matrix_to_euler_rpy(R)).abs().numpy()
 
 
-def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dict[str, Any]:
-    """Simulates the case's sequences and calibrates them; returns the row.
-
-    ``extra`` recipe overrides go after the case's own (e.g. the speed benchmark's settings).
-    """
-    from l2calib.calibration import Calibration
-    from l2calib.interfaces import ReferenceTrajectory
-
-    runs = [
+def simulate_case(case: Case) -> list[Any]:
+    """The case's simulated runs (:class:`~l2calib.sim.SimRun`), one per sequence seed."""
+    return [
         simulate(
             SimConfig.model_validate(
                 {
@@ -133,6 +127,45 @@ def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dic
         )
         for s in case.seeds
     ]
+
+
+def exact_reference_env(name: str, candidates: int = 8):
+    """A case's selected data in one scoring env, with the exact LiDAR trajectory as reference.
+
+    For benchmarks that score chosen extrinsics without training (one process, no workers).
+
+    Returns:
+        ``(env, runs, data, recipe)``: the :class:`~l2calib.train.env.CalibrationEnv` scoring
+        ``candidates`` at a time, the simulated runs (truth: ``runs[0].T_imu_lidar``), the
+        prepared data (segments and references) and the case's recipe.
+    """
+    from l2calib.calibration import Calibration
+    from l2calib.interfaces import ReferenceTrajectory
+    from l2calib.train.env_build import make_env
+
+    case = next(c for c in cases(quick=False) if c.name == name)
+    runs = simulate_case(case)
+    recipe = load_recipe(case.recipe, [o for o in case.overrides if o != "reference.name=gt"])
+    gt = {r.sequence().name: r.gt_lidar for r in runs}
+    data = Calibration(recipe).prepare(
+        sequences=[r.sequence() for r in runs],
+        references=lambda segs: [
+            ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segs
+        ],
+    )
+    env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, candidates)
+    return env, runs, data, recipe
+
+
+def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dict[str, Any]:
+    """Simulates the case's sequences and calibrates them; returns the row.
+
+    ``extra`` recipe overrides go after the case's own (e.g. the speed benchmark's settings).
+    """
+    from l2calib.calibration import Calibration
+    from l2calib.interfaces import ReferenceTrajectory
+
+    runs = simulate_case(case)
     overrides = [o for o in case.overrides if o != "reference.name=gt"]
     recipe = load_recipe(case.recipe, [*overrides, *(extra or []), f"train.seed={train_seed}"])
     sequences = [r.sequence() for r in runs]

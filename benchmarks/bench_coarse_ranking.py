@@ -50,35 +50,12 @@ def candidates(T_gt: torch.Tensor, deg: float, m: float, rng: np.random.Generato
 
 def run_case(name: str) -> list[dict]:
     """The rank correlations of one case (module docstring)."""
-    from benchmarks.bench_calibration import cases
-    from l2calib.calibration import Calibration
-    from l2calib.interfaces import ReferenceTrajectory
-    from l2calib.recipe import load_recipe
-    from l2calib.sim import SimConfig, simulate
-    from l2calib.train.env_build import make_env, score_batch
+    from benchmarks.bench_calibration import exact_reference_env
+    from l2calib.train.env_build import score_batch
     from l2calib_backends.data_fraction import WindowPlan
     from l2calib_backends.initialise import reference_motion
 
-    case = next(c for c in cases(quick=False) if c.name == name)
-    runs = [
-        simulate(
-            SimConfig.model_validate(
-                {"duration_s": case.duration_s, "seed": s, "motion": {"profile": case.profile},
-                 **case.sim}
-            )
-        )
-        for s in case.seeds
-    ]  # fmt: skip
-    recipe = load_recipe(case.recipe, [o for o in case.overrides if o != "reference.name=gt"])
-    gt = {r.sequence().name: r.gt_lidar for r in runs}
-    run = Calibration(recipe)
-    data = run.prepare(
-        sequences=[r.sequence() for r in runs],
-        references=lambda segs: [
-            ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segs
-        ],
-    )
-    env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, 8)
+    env, runs, data, _ = exact_reference_env(name)
     backend = env.backend
     if backend.window_scans != 0:
         raise RuntimeError(f"{name}: needs continuous runs, not {backend.window_scans}-scan ones")

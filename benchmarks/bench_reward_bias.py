@@ -32,34 +32,12 @@ RESULTS = Path(__file__).parent / "results" / "experiments" / "reward_bias.json"
 
 def run_case(name: str) -> list[dict[str, Any]]:
     """Refinements from the truth on one case (module docstring)."""
-    from benchmarks.bench_calibration import cases, rotation_errors_deg
+    from benchmarks.bench_calibration import exact_reference_env, rotation_errors_deg
     from l2calib.assess.refine import refine
-    from l2calib.calibration import Calibration
-    from l2calib.interfaces import Extrinsic, ReferenceTrajectory
-    from l2calib.recipe import load_recipe
-    from l2calib.sim import SimConfig, simulate
-    from l2calib.train.env_build import make_env, score_batch
+    from l2calib.interfaces import Extrinsic
+    from l2calib.train.env_build import score_batch
 
-    case = next(c for c in cases(quick=False) if c.name == name)
-    runs = [
-        simulate(
-            SimConfig.model_validate(
-                {"duration_s": case.duration_s, "seed": s, "motion": {"profile": case.profile},
-                 **case.sim}
-            )
-        )
-        for s in case.seeds
-    ]  # fmt: skip
-    recipe = load_recipe(case.recipe, [o for o in case.overrides if o != "reference.name=gt"])
-    gt = {r.sequence().name: r.gt_lidar for r in runs}
-    run = Calibration(recipe)
-    data = run.prepare(
-        sequences=[r.sequence() for r in runs],
-        references=lambda segs: [
-            ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segs
-        ],
-    )
-    env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, 8)
+    env, runs, data, recipe = exact_reference_env(name)
     T_gt = torch.from_numpy(runs[0].T_imu_lidar)
     true_offset = float(runs[0].time_offset_s)
     cfg = recipe.train
