@@ -14,9 +14,9 @@ comparable.
   On weakly excited data the information is spread along the drive (a yaw turn grades the lever
   arm, an acceleration on a straight the yaw of the extrinsic) and no part ranks candidates like
   the whole: scored on each drive's first quarter, a simulated ground-vehicle run came out
-  0.83° off instead of 0.46° (``benchmarks/results/speed.json``, ugv seed 2); on its most
-  turning quarter PPO settled 50° off in yaw with a 1.8 m lever arm that explains the turn
-  (``benchmarks/results/experiments/speed_weak_stretch.json``); how well a part ranks depends
+  0.83° off instead of 0.46°; on its most turning quarter PPO settled 50° off in yaw with a
+  1.8 m lever arm that explains the turn (both in
+  ``benchmarks/results/experiments/speed_weak_stretch.json``); how well a part ranks depends
   on where it lies (``benchmarks/bench_coarse_ranking.py``). Such runs save work only through
   the early stops (``docs/design.md``).
 """
