@@ -116,6 +116,7 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
             seconds=round(seconds, 1),
             s_per_scan=round(seconds / max(len(seq.scans.stamps_ns), 1), 3),
             load=[round(x, 2) for x in os.getloadavg()],
+            machine=machine_info(),  # per row: a merged file holds rows of several machines
         )
         row["met"] = met(row)
         print(f"{lidar} {profile} {world} seed {seed} | {source}: {summary(row)}", flush=True)
@@ -282,6 +283,8 @@ def save(results: dict[str, Any]) -> None:
         "passed": passed_flags(results["rows"]),
         "rows": results["rows"],
         "machine": machine_info(),
+        "machine_note": "the machine of the last save; rows carry their own since 2026-12-04 "
+        "(rows without one: machine not recorded)",
     }
     RESULTS.write_text(json.dumps(out, indent=1) + "\n")
     RESULTS.with_suffix(".md").write_text(render(out))
