@@ -189,9 +189,8 @@ class LioBackend(OdometryBackend):
         """
         if not self._segments:
             raise BackendError("use_data_fraction() called before prepare()", fix="call prepare()")
-        counts: list[int | None] = [None] * len(self._starts)
-        if self.window_scans > 0:  # windowed: count the windows over all segments together
-            counts = list(window_counts([len(st) for st in self._starts], float(fraction)))
+        # counted over all segments together; a continuous run is one window, kept whole
+        counts = window_counts([len(st) for st in self._starts], float(fraction))
         self._plans = [
             plan_windows(st, len(seg.end_t), float(fraction), count=n)
             for st, seg, n in zip(self._starts, self._segments, counts, strict=True)

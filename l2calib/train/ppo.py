@@ -372,8 +372,9 @@ class PpoTrainer:
             if progress is not None:
                 progress(record)
         self.checkpoint()
-        # what follows (refinement, probes) sees all the data
-        self.outcome.full_scans = set_data_fraction(self.env, 1.0)
+        if self._fraction != 1.0:  # what follows (refinement, probes) sees all the data
+            set_data_fraction(self.env, 1.0)
+        self.outcome.full_scans = full
         self._fraction = None
         # The env stays open: the refinement and the probe score on its workers; its owner
         # closes it.
