@@ -213,6 +213,7 @@ def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dic
         "stop": result.stop_reason,
         "status": result.status,
         "undetermined": result.undetermined,
+        "vertical_hold": result.extra.get("vertical_hold"),  # planar motion: not estimated
         "reference_agreement": result.reference_agreement,
         "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result
         **_offset_fields(result, runs[0].time_offset_s),
@@ -289,6 +290,8 @@ def unresolved(row: dict[str, Any]) -> str:
     for item in row.get("undetermined", []):
         if m := _AXIS.match(item):
             axes.add(("r" if m[1].startswith("rotation") else "t") + m[2])
+    if row.get("vertical_hold"):
+        axes.add("t-vertical(held)")
     if row.get("warnings"):
         axes.add("(disagrees!)")
     return " ".join(sorted(axes)) or "-"

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
-from l2calib.data import NS_PER_S, Sequence
+from l2calib.data import NS_PER_S, ImuSamples, Sequence
 from l2calib.errors import DataError
 from l2calib.io.imu_reader import ImuTopicReader, ImuUnits, to_imu_samples
 from l2calib.io.lidar_scans import LidarTopicReader
@@ -48,6 +48,9 @@ class MotionReport:
             overlap when nothing is selected).
         accel_rms_m_s2: ``[3]`` RMS gravity-free acceleration per IMU axis, likewise.
         notes: The selection's notes (gaps, dropped scans, budget).
+        yaw_share: Share of the rotation about the vertical over the overlap
+            (:mod:`l2calib.selection.planar`); at or above ``train.planar_min_yaw_share`` the
+            motion is planar and calibrate holds the vertical lever arm.
     """
 
     moving_s: float
@@ -58,6 +61,7 @@ class MotionReport:
     gyro_rms_rad_s: list[float]
     accel_rms_m_s2: list[float]
     notes: list[str] = field(default_factory=list)
+    yaw_share: float | None = None
 
 
 def motion_check(
@@ -115,6 +119,8 @@ def motion_check(
         accel_rms_m_s2=[float(x) for x in basis.accel_rms_m_s2],
         notes=list(sel.notes),
     )
+    planar = _planar_issue(samples, seq, f"{lidar.topic} + {imu.topic}")
+    report.yaw_share = planar[0]
     excitation = (basis.gyro_rms_rad_s, basis.accel_rms_m_s2)
     issues = [
         Issue(
@@ -126,4 +132,34 @@ def motion_check(
         )
         for what, fix in data_shortfalls(sel.total_s, excitation, cfg)
     ]
-    return report, issues
+    return report, issues + planar[1]
+
+
+def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, list[Issue]]:
+    """The overlap's vertical rotation share, and a note when the motion is planar."""
+    from l2calib.recipe import TrainConfig
+    from l2calib.selection.planar import planar_motion
+
+    keep = (samples.stamps_ns >= seq.start_ns) & (samples.stamps_ns <= seq.end_ns)
+    if not keep.any():
+        return None, []
+    motion = planar_motion(
+        [ImuSamples(samples.stamps_ns[keep], samples.gyro_rad_s[keep], samples.accel_m_s2[keep])]
+    )
+    if motion.turning_samples == 0:
+        return None, []
+    share = TrainConfig.model_fields["planar_min_yaw_share"].default
+    if not motion.planar(share):
+        return motion.yaw_share, []
+    return motion.yaw_share, [
+        Issue(
+            "info",
+            where,
+            f"planar, yaw-dominant motion (a ground vehicle?): {motion.describe()}. The lever "
+            "arm's vertical component cannot be determined from it: calibrate holds it at "
+            "policy.prior's value (else 0 m, named as not estimated) and searches the rest",
+            "give policy.prior with the height difference from a drawing (translation_m), or "
+            "add a stretch with roll and pitch (ramps, kerbs); whole drives help the rest "
+            "(selection.budget_s)",
+        )
+    ]

@@ -245,6 +245,21 @@ class TrainConfig(StrictModel):
     refine_offset_step_s: float = Field(
         0.002, gt=0, description="first time-offset step of refine (s; with estimate_time_offset)"
     )
+    hold_vertical_translation: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="hold the lever arm's vertical component (along the IMU's measured up) at "
+        "policy.prior's value, else 0 m, instead of searching it: auto = when the data's "
+        "rotation is planar (a ground vehicle; planar_min_yaw_share), where the data cannot "
+        "determine it; the output names it as not estimated (l2calib.train.vertical_hold)",
+    )
+    planar_min_yaw_share: float = Field(
+        0.97,
+        gt=0,
+        le=1,
+        description="share of the rotation (sum of squared rates) about the vertical from which "
+        "the motion counts as planar (l2calib.selection.planar); the simulator's ground vehicle "
+        "gives 0.998, its drone 0.83-0.92, hand-held rigs 0.40-0.43",
+    )
 
     @model_validator(mode="after")
     def _coarse_above_fine(self) -> TrainConfig:

@@ -142,9 +142,10 @@ def train_policy(
         )
     say = stage or (lambda _msg: None)
     _offset_from_rates(recipe, data, say)
+    hold = _vertical_hold(recipe, data, say)
     say(f"preparing the {recipe.backend.name} odometry")
     t0 = time.monotonic()
-    env = make_training_env(recipe, data.segments, data.references)
+    env = make_training_env(recipe, data.segments, data.references, hold=hold)
     attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)
     k = 0
     try:  # the workers serve every attempt, its refinement and probe; down on any error
@@ -155,7 +156,9 @@ def train_policy(
             sub = out_dir if out_dir is None or k == 0 else out_dir / f"restart-{k}"
             # A restart that had not begun when the run was killed starts afresh on --resume.
             again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
-            result_outcome = _attempt(recipe, data, env, seed, sub, again, progress, say, k)
+            result_outcome = _attempt(
+                recipe, data, env, seed, sub, again, progress, say, k, hold=hold
+            )
             attempts.append((*result_outcome, seed))
             result = attempts[-1][0]
             if not result.warnings or k == recipe.train.restarts:
@@ -202,6 +205,25 @@ def _add_trajectories(run: TrainedRun, env, before: np.ndarray) -> None:
          "after": p["positions"][1]}
         for p in previews
     ]  # fmt: skip
+
+
+def _vertical_hold(recipe: Recipe, data: PreparedData, say: Callable[[str], None]):
+    """The vertical lever-arm hold for this data (``train.hold_vertical_translation``) or None."""
+    from l2calib.train.vertical_hold import decide_hold, planar_train_settings
+
+    hold = decide_hold(recipe.train, recipe.policy.prior, [s.imu for s in data.segments])
+    if hold is not None:
+        value = f"{100 * hold.value_m:.1f} cm" + (
+            " (policy.prior)" if hold.source == "prior" else " (no prior: not a measurement)"
+        )
+        changed = planar_train_settings(recipe.train)[1]
+        also = "; ".join(f"train.{k}: {'null' if v is None else v}" for k, v in changed.items())
+        say(
+            f"planar motion ({hold.motion.describe()}): the lever arm's vertical component "
+            f"cannot be determined from it and is held at {value}"
+            + (f"; weak-data settings {also} (set them in the recipe to override)" if also else "")
+        )
+    return hold
 
 
 def _offset_from_rates(recipe: Recipe, data: PreparedData, say: Callable[[str], None]) -> None:
@@ -294,10 +316,12 @@ def _attempt(
     progress: Callable[[Any], None] | None,
     say: Callable[[str], None],
     attempt: int = 0,
+    hold: Any | None = None,
 ) -> tuple[CalibrationResult, Any]:
     """One PPO run from scratch with ``seed``, its refinement and its resolution probe.
 
-    ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user.
+    ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user;
+    ``hold`` is the env's vertical lever-arm hold (the result carries the held value).
     """
     from l2calib.assess import sensitivity
     from l2calib.assess.refine import refine
@@ -307,6 +331,11 @@ def _attempt(
     from l2calib.train.ppo import PpoTrainer
 
     cfg = recipe.train.model_copy(update={"seed": seed})
+    planar_changed: dict[str, Any] = {}
+    if hold is not None:  # planar motion: the weak-data settings, unless the recipe sets them
+        from l2calib.train.vertical_hold import planar_train_settings
+
+        cfg, planar_changed = planar_train_settings(cfg)
     data_s = sum(s.duration_s for s in data.segments)
     if cfg.coarse_to_fine and data_s > 0:  # never fewer than coarse_min_data_s seconds
         floor = min(1.0, cfg.coarse_min_data_s / data_s)
@@ -323,7 +352,7 @@ def _attempt(
         **({} if start is None else {"init_time_offset_s": start}),
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
-    trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint)
+    trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint, hold=hold)
     if resume:
         trainer.resume()
         which = "the first PPO run" if attempt == 0 else f"restart {attempt}"
@@ -337,7 +366,7 @@ def _attempt(
     stage_s = {"training": time.monotonic() - clock}
     clock = time.monotonic()
     best = policy.mode()  # an Extrinsic from here to the result
-    best = Extrinsic(best.T_imu_lidar.detach().clone(), best.time_offset_s)
+    best = Extrinsic(_held(hold, best.T_imu_lidar.detach().clone()), best.time_offset_s)
     refined = None
     if cfg.refine_rounds > 0:
         say(f"refining the result on the reward ({cfg.refine_rounds} batched probe rounds)")
@@ -346,6 +375,7 @@ def _attempt(
             cfg.refine_trans_step_m, offset_step_s=cfg.refine_offset_step_s,
         )  # fmt: skip
         best = refined.extrinsic  # the offset was the refinement's seventh axis, if estimated
+        best = Extrinsic(_held(hold, best.T_imu_lidar), best.time_offset_s)
         log.info(
             "refine: reward %.5f -> %.5f, moved %.3f deg / %.2f cm (%d evaluations)",
             refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
@@ -367,7 +397,7 @@ def _attempt(
         say("probing the reward along the time offset (its resolution)")
         offset_res = probe_time_offset(env, T_mode, offset)
     stage_s["probe"] = time.monotonic() - clock
-    unc = policy.uncertainty()
+    unc = policy.uncertainty() if hold is None else hold.policy_spread(policy.uncertainty())
     sources = sorted({r.source for r in data.references})
     after_training = (
         candidates.shape[0]
@@ -388,7 +418,8 @@ def _attempt(
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
         resolution=resolution,
-        undetermined=undetermined_axes(resolution, data.selection)
+        undetermined=([hold.describe()] if hold is not None else [])
+        + undetermined_axes(resolution, data.selection)
         + (offset_res.undetermined() if offset_res else []),
         time_offset_resolution=offset_res,
         time_offset_start_s=(start or 0.0) if offset is not None else None,
@@ -398,8 +429,18 @@ def _attempt(
             # which reference the reward compared with, and why (e.g. the recipe's fallback)
             "reference": {"sources": sources, "notes": list(data.notes)},
             **({"refine": _refine_summary(refined)} if refined else {}),
+            **(
+                {"vertical_hold": {**hold.to_dict(), "train_settings": planar_changed}}
+                if hold is not None
+                else {}
+            ),
         },
     ), outcome
+
+
+def _held(hold: Any | None, T_imu_lidar: torch.Tensor) -> torch.Tensor:
+    """``T_imu_lidar`` with the held vertical translation (unchanged without a hold)."""
+    return T_imu_lidar if hold is None else hold.apply(T_imu_lidar)
 
 
 def _refine_summary(refined: Any) -> dict[str, Any]:

@@ -30,6 +30,8 @@ def test_unresolved_names_probe_axes_not_excitation_notes():
     )
     assert unresolved(row) == "rx tz"
     assert unresolved(_row("x", 0, 1.0, 0.1)) == "-"
+    held = {**_row("x", 0, 1.0, 0.1), "vertical_hold": {"value_m": 0.0, "source": "none"}}
+    assert unresolved(held) == "t-vertical(held)"  # a ground vehicle's height: not estimated
 
 
 def test_summary_counts_failed_seeds_as_missed():

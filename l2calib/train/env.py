@@ -10,6 +10,7 @@ prepared segment (joint multi-sequence calibration), and every step ends the epi
 from __future__ import annotations
 
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -129,6 +130,8 @@ class CalibrationEnv(ScoringEnv):
         time_offset: Whether actions carry a LiDAR–IMU time offset (8-dim actions).
         worker_index: This env's place among the worker processes of a ``ParallelEnv`` (which
             share of a batch :meth:`score_share` scores).
+        hold: Holds every candidate's vertical lever arm before the odometry runs
+            (:class:`~l2calib.train.vertical_hold.VerticalHold`), or ``None``.
     """
 
     def __init__(
@@ -139,9 +142,11 @@ class CalibrationEnv(ScoringEnv):
         reward: RewardConfig | None = None,
         time_offset: bool = False,
         worker_index: int = 0,
+        hold: Any | None = None,
     ) -> None:
         super().__init__(num_candidates, 8 if time_offset else 7)
         self.backend = backend
+        self.hold = hold
         self.worker_index = worker_index
         self.references = list(references)
         self.reward_config = reward or RewardConfig()
@@ -168,6 +173,8 @@ class CalibrationEnv(ScoringEnv):
         Returns:
             A :class:`l2calib.reward.RewardBreakdown` and the ``[K]`` candidate status codes.
         """
+        if self.hold is not None:
+            T_imu_lidar = self.hold.apply(T_imu_lidar)
         outputs = self.backend.evaluate(T_imu_lidar, time_offset_s)
         if len(outputs) != len(self.references):
             raise TrainingError(
@@ -251,6 +258,8 @@ class CalibrationEnv(ScoringEnv):
         T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
         if T.shape[0] == 0:
             return []
+        if self.hold is not None:
+            T = self.hold.apply(T)
         out = []
         for i, o in enumerate(self.backend.evaluate(T, offsets)):
             T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)

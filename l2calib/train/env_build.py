@@ -42,6 +42,7 @@ def make_env(
     num_candidates: int,
     threads: int = 0,
     worker_index: int = 0,
+    hold: Any | None = None,
 ):
     """A :class:`~l2calib.train.env.CalibrationEnv` (top-level so worker processes can build it)."""
     from l2calib.train.env import CalibrationEnv
@@ -55,6 +56,7 @@ def make_env(
         recipe.reward,
         time_offset=recipe.train.estimate_time_offset,
         worker_index=worker_index,
+        hold=hold,
     )
 
 
@@ -74,13 +76,18 @@ def make_training_env(
     recipe: Recipe,
     segments: Sequence[Segment],
     references: Sequence[ReferenceTrajectory],
+    hold: Any | None = None,
 ):
-    """One environment scoring ``train.candidates_per_iteration`` candidates per step."""
+    """One environment scoring ``train.candidates_per_iteration`` candidates per step.
+
+    ``hold``: the vertical lever-arm hold every worker applies (:mod:`l2calib.train.
+    vertical_hold`), or ``None``.
+    """
     K = recipe.train.candidates_per_iteration
     workers = resolve_workers(K, recipe.train.workers)
     data = recipe.model_dump(mode="json")
     if workers == 1:
-        return make_env(data, segments, references, K)
+        return make_env(data, segments, references, K, hold=hold)
     if K % workers:
         raise ConfigError(
             f"train.candidates_per_iteration={K} is not divisible by train.workers={workers}",
@@ -95,6 +102,7 @@ def make_training_env(
         references=list(references),
         num_candidates=K // workers,
         threads=1,
+        hold=hold,
     )
     # A plain callable, not TorchRL's EnvCreator: that one also runs a random step in this
     # process (seconds of odometry on one core) just to learn the specs, and cannot give each

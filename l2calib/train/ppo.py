@@ -161,14 +161,26 @@ class PpoTrainer:
         cfg: PPO settings and budgets.
         out_dir: Where checkpoints and metrics go (``None``: nowhere).
         fingerprint: Identity of recipe + data, checked on resume.
+        hold: The env's vertical lever-arm hold (:mod:`l2calib.train.vertical_hold`) or
+            ``None``; the spreads the trainer judges (hand-over, convergence, data share) are
+            then those of the translations actually scored.
     """
 
-    def __init__(self, policy, env, cfg: TrainConfig, out_dir: Path | None, fingerprint: str):
+    def __init__(
+        self,
+        policy,
+        env,
+        cfg: TrainConfig,
+        out_dir: Path | None,
+        fingerprint: str,
+        hold: Any | None = None,
+    ):
         from torchrl.collectors import Collector
         from torchrl.envs.utils import ExplorationType
         from torchrl.objectives import ClipPPOLoss
 
         self.policy, self.env, self.cfg = policy, env, cfg
+        self.hold = hold
         self.out_dir = out_dir
         self.fingerprint = fingerprint
         self.K = cfg.candidates_per_iteration
@@ -200,6 +212,11 @@ class PpoTrainer:
 
             self._logger = CSVLogger("metrics", log_dir=str(out_dir))
 
+    def _spread(self):
+        """The policy's spreads, translation σ as scored (projected when the env holds it)."""
+        spread = self.policy.uncertainty()
+        return spread if self.hold is None else self.hold.policy_spread(spread)
+
     def _param_groups(self) -> list[dict[str, Any]]:
         groups = getattr(self.policy, "param_groups", None)
         if groups is None:
@@ -222,7 +239,7 @@ class PpoTrainer:
             group["lr"] = self.cfg.lr * factor
         if self.cfg.mean_step_scale <= 0:
             return
-        unc = self.policy.uncertainty()
+        unc = self._spread()
         sigma = {
             "rotation_mean": min(float(unc.rotation_sigma_rad.mean()), 1.0),
             "translation_mean": float(unc.translation_sigma_m.mean()),
@@ -345,7 +362,7 @@ class PpoTrainer:
             if early is not None:
                 self.outcome.stop_reason = early
                 break
-            fraction = data_fraction(self.policy.uncertainty(), self.cfg)
+            fraction = data_fraction(self._spread(), self.cfg)
             if fraction != self._fraction:  # one round trip to the workers when it changes
                 self._fraction, self._scans = fraction, set_data_fraction(self.env, fraction)
             scans = self._scans
@@ -388,7 +405,7 @@ class PpoTrainer:
         e_r = batch["next", "mean_e_r"].reshape(-1)
         best = int(reward.argmax())
         t, rpy, off = _mode_summary(self.policy)
-        unc = self.policy.uncertainty()
+        unc = self._spread()
         return IterationRecord(
             iteration=it,
             evaluations=self.outcome.evaluations,

@@ -1,0 +1,141 @@
+"""Holding the lever arm's vertical component where planar motion cannot determine it.
+
+On a ground vehicle's drive nearly all rotation is about the vertical, so the component of the
+IMU → LiDAR translation along the vertical leaves the reward flat (:mod:`l2calib.selection.
+planar`). Left in the search, PPO's mean wanders along it (its spread never narrows, so PPO also
+never hands over), and a far-off vertical value drags the rotation and the horizontal lever arm
+with it: a ground-vehicle run with the LiDAR-only reference ended 2.85 m off along z, 13–17 cm in
+x/y and 1.6° (``benchmarks/results/calibration.json``, "ugv all ct-lidar").
+
+:class:`VerticalHold` replaces that component of every candidate before the odometry runs, so the
+reward, the refinement, the probe and the written result all see the held value: the prior's
+(``policy.prior``, e.g. from a drawing) or, without a prior, 0 m — named in the output as not
+estimated, never passed off as a measurement. ``train.hold_vertical_translation`` chooses:
+``auto`` (hold on planar motion), ``on`` (always hold, e.g. with a prior from a drawing), ``off``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import numpy as np
+import torch
+
+from l2calib.selection.planar import PlanarMotion, planar_motion
+
+
+@dataclass(frozen=True)
+class VerticalHold:
+    """The vertical lever-arm component every candidate is given.
+
+    Attributes:
+        axis_imu: The held direction, a unit vector in the IMU frame ``(x, y, z)``: the data's
+            dominant rotation axis (signed up; :mod:`l2calib.selection.planar`).
+        value_m: The held value of ``t_imu_lidar · axis_imu`` (m).
+        source: ``"prior"`` (policy.prior) or ``"none"`` (no prior: 0 m, not a measurement).
+        motion: What the IMU said about the motion (:class:`PlanarMotion`).
+    """
+
+    axis_imu: tuple[float, float, float]
+    value_m: float
+    source: str
+    motion: PlanarMotion
+
+    def _axis(self, like: torch.Tensor) -> torch.Tensor:
+        return torch.tensor(self.axis_imu, dtype=like.dtype, device=like.device)
+
+    def apply(self, T_imu_lidar: torch.Tensor) -> torch.Tensor:
+        """Candidates ``[..., 4, 4]`` with their vertical translation set to ``value_m``."""
+        u = self._axis(T_imu_lidar)
+        t = T_imu_lidar[..., :3, 3]
+        out = T_imu_lidar.clone()
+        out[..., :3, 3] = t + (self.value_m - t @ u)[..., None] * u
+        return out
+
+    def spread(self, sigma_m: torch.Tensor) -> torch.Tensor:
+        """Per-IMU-axis σ ``[3]`` (m) of the translations scored, from the policy's ``[3]``.
+
+        The policy's spread along the held direction never narrows (the reward cannot grade
+        it); what the odometry sees is the projection ``P Σ P`` with ``P = I − u uᵀ``.
+        """
+        u = self._axis(sigma_m)
+        P = torch.eye(3, dtype=sigma_m.dtype) - torch.outer(u, u)
+        cov = P @ torch.diag(sigma_m**2) @ P
+        return torch.sqrt(torch.clamp(torch.diagonal(cov), min=0.0))
+
+    def policy_spread(self, spread: Any) -> Any:
+        """A :class:`~l2calib.interfaces.PolicySpread` with :meth:`spread` as translation σ."""
+        return replace(spread, translation_sigma_m=self.spread(spread.translation_sigma_m))
+
+    def describe(self) -> str:
+        """The output's entry under ``uncertainty.undetermined``."""
+        axis = ", ".join(f"{v:+.2f}" for v in self.axis_imu)
+        where = (
+            "policy.prior's value"
+            if self.source == "prior"
+            else "no prior was given, so this is NOT a measurement: measure the height "
+            "difference from a drawing and set policy.prior"
+        )
+        return (
+            f"translation along the rotation axis [{axis}] (IMU frame; the vertical): not "
+            f"estimated, held at "
+            f"{100 * self.value_m:.1f} cm ({where}); planar motion cannot determine it "
+            f"({self.motion.describe()}); driving over ramps or kerbs, or tilting the rig, "
+            "would"
+        )
+
+    def to_dict(self) -> dict[str, Any]:
+        """``calibration.yaml`` → ``vertical_hold``."""
+        return {
+            "axis_imu": [round(float(v), 5) for v in self.axis_imu],
+            "value_m": round(float(self.value_m), 5),
+            "source": self.source,
+            "yaw_share": round(self.motion.yaw_share, 4),
+            "tilt_from_vertical_deg": round(self.motion.tilt_deg, 2),
+            "off_axis_rms_rad_s": round(self.motion.off_axis_rms_rad_s, 4),
+            "meaning": "t_imu_lidar . axis_imu is held at value_m, not estimated",
+        }
+
+
+def decide_hold(train: Any, prior: Any | None, imus: list[Any]) -> VerticalHold | None:
+    """Whether (and where) to hold the vertical lever arm for this data.
+
+    Args:
+        train: The recipe's ``train`` (``hold_vertical_translation``, ``planar_min_yaw_share``).
+        prior: The recipe's ``policy.prior`` or ``None``.
+        imus: IMU samples of the data calibrated on (the selected segments').
+
+    Returns:
+        The hold, or ``None`` (``off``; or ``auto`` on motion that is not planar).
+    """
+    mode = train.hold_vertical_translation
+    if mode == "off":
+        return None
+    motion = planar_motion(imus)
+    if mode == "auto" and not motion.planar(train.planar_min_yaw_share):
+        return None
+    axis = motion.axis_imu
+    value, source = 0.0, "none"
+    if prior is not None:
+        value, source = float(np.dot(np.asarray(prior.translation_m, dtype=float), axis)), "prior"
+    return VerticalHold(tuple(float(v) for v in axis), value, source, motion)
+
+
+#: Training settings for planar motion, unless the recipe sets them: PPO runs its budget (no
+#: hand-over) and the refinement climbs 6 rounds. Measured on the simulator's ground vehicle
+#: (three sequences, gt reference): with the hand-over the held vertical lets PPO hand over after
+#: ~78 iterations and the refinement then left 1.3 deg of yaw (training seed 0; 0.44-0.62 deg
+#: without the hold and its early hand-over); 6 refinement rounds instead of 12 had measured
+#: 0.26 against 0.35 deg over three seeds (benchmarks/results/speed.md, "today" vs "fast").
+PLANAR_TRAIN = {"handover_rotation_sigma_deg": None, "refine_rounds": 6}
+
+
+def planar_train_settings(train: Any) -> tuple[Any, dict[str, Any]]:
+    """``train`` with :data:`PLANAR_TRAIN` where the recipe left them at their defaults.
+
+    Returns:
+        The settings to train with, and what was changed (empty when the recipe set both).
+    """
+    changed = {k: v for k, v in PLANAR_TRAIN.items() if k not in train.model_fields_set}
+    return train.model_copy(update=changed), changed
