@@ -76,6 +76,10 @@ class GtsamBackend(LioBackend):
             self.settings, graph=replace(self.settings.graph, init_sigmas=sigmas)
         )
 
-    def _run_segment(self, seg, motion, starts, T, off, seeds, ends=None) -> RunResult:  # noqa: ANN001
+    def _run_segment(  # noqa: ANN001
+        self, seg, motion, starts, T, off, seeds, ends=None, shared_map=None
+    ) -> RunResult:
         """One prepared segment for all candidates, with the GTSAM loop."""
-        return run_segment_gtsam(seg, motion, starts, T, off, self.settings, self._map, seeds, ends)
+        return run_segment_gtsam(
+            seg, motion, starts, T, off, self.settings, shared_map, seeds, ends
+        )

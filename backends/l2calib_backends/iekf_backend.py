@@ -46,6 +46,8 @@ class IekfBackend(LioBackend):
         self.init_sigmas = sigmas
         self.settings = replace(self.settings, init_sigmas=sigmas)
 
-    def _run_segment(self, seg, motion, starts, T, off, seeds, ends=None) -> RunResult:  # noqa: ANN001
+    def _run_segment(  # noqa: ANN001
+        self, seg, motion, starts, T, off, seeds, ends=None, shared_map=None
+    ) -> RunResult:
         """One prepared segment for all candidates, with the IEKF loop."""
-        return run_segment(seg, motion, starts, T, off, self.settings, self._map, seeds, ends)
+        return run_segment(seg, motion, starts, T, off, self.settings, shared_map, seeds, ends)

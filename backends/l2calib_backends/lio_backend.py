@@ -30,7 +30,7 @@ from l2calib_backends.initialise import ReferenceMotion, reference_motion
 from l2calib_backends.options import AUTO_WINDOW_SCANS, LioOptions
 from l2calib_backends.plane_map import VoxelPlaneMap
 from l2calib_backends.prepare import PreparedSegment, prepare_segment
-from l2calib_backends.reference_map import build_reference_map, seed_points
+from l2calib_backends.reference_map import build_reference_maps, seed_points
 from l2calib_backends.scan_loop import window_starts
 
 _log = logging.getLogger(__name__)
@@ -76,7 +76,7 @@ class LioBackend(OdometryBackend):
         self._starts: list[list[int]] = []
         self._seeds: list = []
         self._plans: list[WindowPlan] = []  # the windows evaluate() runs (use_data_fraction)
-        self._map: VoxelPlaneMap | None = None
+        self._maps: list[VoxelPlaneMap | None] = []  # per segment: its world frame's shared map
         if config.threads:
             torch.set_num_threads(config.threads)
 
@@ -129,9 +129,9 @@ class LioBackend(OdometryBackend):
             reference_motion(p, r.trajectory, st)
             for p, r, st in zip(self._segments, references, self._starts, strict=True)
         ]
-        self._map = None
+        self._maps = [None] * len(segments)
         if c.map_mode == "shared-map":
-            self._map = build_reference_map(
+            self._maps = build_reference_maps(
                 segments,
                 references,
                 c.map_voxel_m,
@@ -164,12 +164,12 @@ class LioBackend(OdometryBackend):
         )
         outputs = []
         with torch.no_grad():
-            for seg, motion, plan, seeds in zip(
-                self._segments, self._motions, self._plans, self._seeds, strict=True
+            for seg, motion, plan, seeds, shared in zip(
+                self._segments, self._motions, self._plans, self._seeds, self._maps, strict=True
             ):
                 res = self._run_segment(
                     seg, motion_subset(motion, plan.keep), plan.starts, T, off,
-                    seeds_subset(seeds, plan.keep), plan.ends,
+                    seeds_subset(seeds, plan.keep), plan.ends, shared,
                 )  # fmt: skip
                 outputs.append(
                     CandidateTrajectories(
@@ -203,9 +203,10 @@ class LioBackend(OdometryBackend):
 
     @abstractmethod
     def _run_segment(  # noqa: ANN001
-        self, seg, motion, starts, T, off, seeds, ends=None
+        self, seg, motion, starts, T, off, seeds, ends=None, shared_map=None
     ) -> RunResult:
         """One prepared segment for all candidates ``T`` ``[K, 4, 4]`` with offsets ``off``.
 
-        Windows start at ``starts`` and end at ``ends`` (default: each at the next start).
+        Windows start at ``starts`` and end at ``ends`` (default: each at the next start);
+        ``shared_map``: the segment's world frame's map in shared-map mode, else ``None``.
         """

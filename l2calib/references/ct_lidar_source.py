@@ -179,10 +179,11 @@ class CtLidarReference(LidarOdometryReference):
         }
         hits = {n: self.cache.load(k) for n, k in keys.items()} if self.cache.enabled else {}
         cached = bool(hits) and all(a is not None for a in hits.values())
+        # one world frame for the segments of one run: the LIO backend's shared map spans a frame
+        frame = f"{self.name}:{run.sequence.name}@{run.start_ns}"
         if cached:
             trajs = {
-                s.name: trajectory_from_arrays(hits[s.name], "lidar", f"{self.name}:{s.name}")
-                for s in run.segments
+                s.name: trajectory_from_arrays(hits[s.name], "lidar", frame) for s in run.segments
             }
         else:
             world = f"{self.name}:{run.sequence.name} run"
@@ -190,7 +191,7 @@ class CtLidarReference(LidarOdometryReference):
             t, R, p = sample_poses(
                 stamps, motions, scans[-1].end_stamp_ns, self.options.poses_per_scan
             )
-            trajs = {s.name: cut(t, R, p, s, f"{self.name}:{s.name}") for s in run.segments}
+            trajs = {s.name: cut(t, R, p, s, frame) for s in run.segments}
             for s in run.segments if self.cache.enabled else []:
                 summary = {"source": self.name, "segment": s.name, "run_scans": len(scans)}
                 try:
