@@ -3,9 +3,9 @@
 On a ground vehicle's drive nearly all rotation is about the vertical, so the component of the
 IMU → LiDAR translation along the vertical leaves the reward flat (:mod:`l2calib.selection.
 planar`). Left in the search, PPO's mean wanders along it (its spread never narrows, so PPO also
-never hands over), and a far-off vertical value drags the rotation and the horizontal lever arm
-with it: a ground-vehicle run with the LiDAR-only reference ended 2.85 m off along z, 13–17 cm in
-x/y and 1.6° (``benchmarks/results/calibration.json``, "ugv all ct-lidar").
+never hands over): a ground-vehicle run with the LiDAR-only reference ended 2.85 m off along z
+(``benchmarks/results/experiments/ugv_before_hold.json``; its 13–17 cm in x / y came mostly from
+the shared reference map over several runs, fixed since: ``docs/references.md``).
 
 :class:`VerticalHold` replaces that component of every candidate before the odometry runs, so the
 reward, the refinement, the probe and the written result all see the held value: the prior's
