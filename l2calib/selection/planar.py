@@ -14,7 +14,8 @@ whichever way the IMU is mounted; "up" (the mean specific force, gravity once th
 accelerations average out) only names it and signs it. On the simulator's 40 s runs the ground
 vehicle (gently sloped ground, suspension sway) gives 0.998 (its axis 0.1–0.3° from the IMU's
 z), the drone, which tilts to accelerate, 0.83–0.92, hand-held rigs 0.40–0.43;
-``train.planar_min_yaw_share`` (0.97) sits between the first two.
+``train.planar_min_yaw_share`` (0.97) sits between the first two
+(``benchmarks/results/experiments/planar_shares.json``).
 """
 
 from __future__ import annotations

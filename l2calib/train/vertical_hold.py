@@ -123,11 +123,12 @@ def decide_hold(train: Any, prior: Any | None, imus: list[Any]) -> VerticalHold 
 
 
 #: Training settings for planar motion, unless the recipe sets them: PPO runs its budget (no
-#: hand-over) and the refinement climbs 6 rounds. Measured on the simulator's ground vehicle
-#: (three sequences, gt reference): with the hand-over the held vertical lets PPO hand over after
-#: ~78 iterations and the refinement then left 1.3 deg of yaw (training seed 0; 0.44-0.62 deg
-#: without the hold and its early hand-over); 6 refinement rounds instead of 12 had measured
-#: 0.26 against 0.35 deg over three seeds (benchmarks/results/speed.md, "today" vs "fast").
+#: hand-over) and the refinement climbs 6 rounds. With the hold and the default hand-over, PPO
+#: handed over after 78 iterations on the simulator's ground vehicle and the refinement left
+#: 1.32 deg (gt reference, training seed 0; a scratch run, not stored); with these settings the
+#: same seed gave 0.23 deg (benchmarks/results/calibration.json, "ugv all"). Without the hold,
+#: the same two settings had measured 0.26 against 0.35 deg over three seeds
+#: (benchmarks/results/speed.md, "today" vs "fast").
 PLANAR_TRAIN = {"handover_rotation_sigma_deg": None, "refine_rounds": 6}
 
 
