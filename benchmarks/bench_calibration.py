@@ -129,8 +129,10 @@ def simulate_case(case: Case) -> list[Any]:
     ]
 
 
-def exact_reference_env(name: str, candidates: int = 8):
+def exact_reference_env(name: str | Case, candidates: int = 8):
     """A case's selected data in one scoring env, with the exact LiDAR trajectory as reference.
+
+    ``name``: a case of :func:`cases`, or a :class:`Case`.
 
     For benchmarks that score chosen extrinsics without training (one process, no workers).
 
@@ -141,11 +143,11 @@ def exact_reference_env(name: str, candidates: int = 8):
     """
     from l2calib.calibration import Calibration
     from l2calib.interfaces import ReferenceTrajectory
-    from l2calib.train.env_build import make_env
+    from l2calib.train.env import make_env
 
-    case = next(c for c in cases(quick=False) if c.name == name)
+    case = name if isinstance(name, Case) else next(c for c in cases(quick=False) if c.name == name)
     runs = simulate_case(case)
-    recipe = load_recipe(case.recipe, [o for o in case.overrides if o != "reference.name=gt"])
+    recipe = load_recipe(case.recipe, [o for o in case.overrides if not o.startswith("reference.")])
     gt = {r.sequence().name: r.gt_lidar for r in runs}
     data = Calibration(recipe).prepare(
         sequences=[r.sequence() for r in runs],

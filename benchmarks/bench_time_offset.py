@@ -190,6 +190,7 @@ def render(results: dict[str, Any]) -> str:
             f"| {r['evaluations']} | {r['wall_s']:.0f} | {r['machine']['load'][0]:.1f} "
             f"| {v.get(key(r), '-')} |"
         )
+    lines += _means_table(rows)
     for r in rows:
         if "inspect" in r:
             i = r["inspect"]
@@ -205,6 +206,52 @@ def render(results: dict[str, Any]) -> str:
                 f"{'; '.join(x for x in r['undetermined'] if 'time offset' in x) or 'none'}."
             )
     return "\n".join(lines) + "\n"
+
+
+def _means_table(rows: list[dict[str, Any]]) -> list[str]:
+    """Per reference and offset, means over the training seeds against the baseline's mean.
+
+    One seed's error varies more than the issue's slack (the gt baseline alone: 0.20-0.40 cm
+    over three seeds), so the verdict that counts compares means over the same seeds.
+    """
+    hand = [r for r in rows if r["profile"] == "handheld"]
+    out = [
+        "\n**Means over training seeds** (the verdict that counts: one seed's error varies more "
+        "than the slack):\n",
+        "| reference | offset ms | seeds | max offset error ms | t cm | r deg | evals "
+        "| baseline t cm / r deg | verdict |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for ref in sorted({r["reference"] for r in hand}):
+        base = [r for r in hand if r["reference"] == ref and not r["estimate"]
+                and r["offset_ms"] == 0]  # fmt: skip
+        if not base:
+            continue
+        seeds = {r.get("train_seed", 0) for r in base}
+        bt = sum(r["t_err_cm"] for r in base) / len(base)
+        br = sum(r["r_err_deg"] for r in base) / len(base)
+        t_max, r_max = (
+            max(bt * (1 + SLACK[0]), bt + SLACK[1]),
+            max(br * (1 + SLACK[0]), br + SLACK[2]),
+        )
+        for off in sorted({r["offset_ms"] for r in hand if r["reference"] == ref}):
+            on = [r for r in hand if r["reference"] == ref and r["estimate"]
+                  and r["offset_ms"] == off and r.get("train_seed", 0) in seeds]  # fmt: skip
+            if len(on) < len(seeds):
+                continue
+            t = sum(r["t_err_cm"] for r in on) / len(on)
+            rr = sum(r["r_err_deg"] for r in on) / len(on)
+            worst = max(abs(r["offset_error_ms"]) for r in on)
+            ev = sum(r["evaluations"] for r in on) / len(on)
+            why = [f"offset {worst:.2f} ms"] if worst > OFFSET_TARGET_MS else []
+            why += [f"{t:.2f} cm > {t_max:.2f}"] if t > t_max else []
+            why += [f"{rr:.3f} deg > {r_max:.3f}"] if rr > r_max else []
+            verdict = "met" if not why else "MISSED (" + "; ".join(why) + ")"
+            out.append(
+                f"| {ref} | {off:+g} | {len(on)} | {worst:.2f} | {t:.2f} | {rr:.3f} | {ev:.0f} "
+                f"| {bt:.2f} / {br:.3f} | {verdict} |"
+            )
+    return out
 
 
 def _start_text(r: dict[str, Any]) -> str:

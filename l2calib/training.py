@@ -143,7 +143,8 @@ def train_policy(
     say = stage or (lambda _msg: None)
     _offset_from_rates(recipe, data, say)
     hold = _vertical_hold(recipe, data, say)
-    say(f"preparing the {recipe.backend.name} odometry")
+    where = " on Ray actors" if recipe.train.executor == "ray" else ""
+    say(f"preparing the {recipe.backend.name} odometry{where}")
     t0 = time.monotonic()
     env = make_training_env(recipe, data.segments, data.references, hold=hold)
     attempts: list[tuple[CalibrationResult, Any, int]] = []  # (result, outcome, seed)

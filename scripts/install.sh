@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Installs l2calib and its two plugin distributions into ./.venv from this repository's files.
 #
-#   scripts/install.sh            # core + backends + policies + test tools
+#   scripts/install.sh            # core + backends + policies + test tools + Ray (optional extra)
 #
 # Environment:
 #   PYTHON       interpreter to build the venv from (default: python3, needs >= 3.10)
@@ -54,9 +54,9 @@ if ! "$VENV/bin/python" -c 'import torch' >/dev/null 2>&1; then
 fi
 
 # 4. The three distributions (editable) and the test tools.
-say "installing l2calib, l2calib-backends, l2calib-policies"
-"${PIP[@]}" install -e ".[test]" -e ./backends -e ./policies
-"$VENV/bin/python" -c 'import open3d, torchrl, gtsam, kiss_icp, rosbags' \
+say "installing l2calib (with the ray extra), l2calib-backends, l2calib-policies"
+"${PIP[@]}" install -e ".[test,ray]" -e ./backends -e ./policies
+"$VENV/bin/python" -c 'import open3d, torchrl, gtsam, kiss_icp, rosbags, ray' \
   || die "a dependency failed to import — fix: see the message above"
 touch "$VENV/.installed"
 say "done: $VENV/bin/l2calib"

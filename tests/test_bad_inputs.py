@@ -475,3 +475,21 @@ def test_sigterm_exits_143(sim6, tmp_path):
     assert proc.returncode == 143, stderr
     assert waited < 5.0 and "Traceback" not in stderr
     assert "(SIGTERM;" in stderr and "--resume" in stderr
+
+
+def test_a_killed_workers_fd_sharing_error_prints_no_traceback(monkeypatch, capsys):
+    """After an interruption, multiprocessing's fd-sharing thread may report a worker killed
+    mid-transfer through ``sys.excepthook``: dropped; any other error still prints."""
+    from l2calib import interrupt
+
+    monkeypatch.setattr(sys, "excepthook", sys.__excepthook__)
+    interrupt.stop_workers(object())  # no workers: only the hook is installed
+    namespace: dict = {}
+    code = "def serve():\n    raise ConnectionResetError('worker gone')\n"
+    exec(compile(code, "/usr/lib/python3/multiprocessing/resource_sharer.py", "exec"), namespace)
+    for raise_it, shown in ((namespace["serve"], False), (lambda: 1 / 0, True)):
+        try:
+            raise_it()
+        except Exception:
+            sys.excepthook(*sys.exc_info())
+        assert ("Traceback" in capsys.readouterr().err) is shown

@@ -94,7 +94,8 @@ def run_segment_gtsam(
     """
     batch = Batch.layout(starts, len(seg.end_t), T_imu_lidar, time_offset_s, ends)
     dtype = T_imu_lidar.dtype
-    state = initial_states(motion, T_imu_lidar, dict(settings.graph.init_sigmas, grav=1.0))
+    sigmas = dict(settings.graph.init_sigmas, grav=1.0)
+    state = initial_states(motion, T_imu_lidar, sigmas, time_offset_s)
     state.P = torch.eye(DIM, dtype=dtype).repeat(batch.B, 1, 1) * 1e-6  # unused: graphs hold it
     W = batch.W
     params = [imu_params(state.g[k * W].numpy(), settings.noise) for k in range(batch.K)]

@@ -69,7 +69,7 @@ def run_segment(
     prog = drive(
         seg,
         batch,
-        initial_states(motion, T_imu_lidar, settings.init_sigmas),
+        initial_states(motion, T_imu_lidar, settings.init_sigmas, time_offset_s),
         settings.noise,
         step,
         shared_map,

@@ -41,6 +41,7 @@ def _root(
 
 # Command modules register themselves on ``app``; add new commands here (one line each).
 from l2calib.cli import (  # noqa: E402
+    cmd_batch,
     cmd_calibrate,
     cmd_demo,
     cmd_evaluate,
@@ -55,6 +56,7 @@ from l2calib.cli import (  # noqa: E402
 for _module in (
     cmd_demo,
     cmd_calibrate,
+    cmd_batch,
     cmd_evaluate,
     cmd_simulate,
     cmd_inspect,

@@ -16,7 +16,11 @@ CHECKPOINT_NAME = "checkpoint.pt"
 
 
 #: Settings a resumed run may change: budgets and bookkeeping, not the optimisation itself.
-RESUMABLE_CHANGES = ("max_iterations", "max_evaluations", "checkpoint_every", "workers")
+#: Settings a resumed run may change: budgets, and where the candidates are scored (the same
+#: seed gives the same result with any number of workers, any executor and any Ray actors).
+RESUMABLE_CHANGES = (
+    "max_iterations", "max_evaluations", "checkpoint_every", "workers", "executor", "ray"
+)  # fmt: skip
 
 
 def recipe_fingerprint(recipe_data: dict[str, Any], data_ids: list[str]) -> str:

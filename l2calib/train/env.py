@@ -5,6 +5,10 @@ The observation is a constant; the action of candidate ``k`` is
 ``[qx, qy, qz, qw, tx, ty, tz(, time_offset_s)]`` (``R_imu_lidar`` as a unit quaternion,
 ``t_imu_lidar`` in m); the reward is the paper's trajectory-alignment reward pooled over every
 prepared segment (joint multi-sequence calibration), and every step ends the episode.
+
+Also here: :func:`make_env` (a recipe's env, as worker processes and Ray actors build it) and
+:func:`merge_shares` (a batch's rewards back in candidate order from the shares the workers or
+actors scored).
 """
 
 from __future__ import annotations
@@ -19,9 +23,10 @@ from torchrl.data import Binary, Composite, Unbounded
 from torchrl.envs import EnvBase
 
 from l2calib import geometry as geo
+from l2calib.data import Segment
 from l2calib.errors import TrainingError
 from l2calib.interfaces import CandidateStatus, OdometryBackend, ReferenceTrajectory
-from l2calib.recipe import RewardConfig
+from l2calib.recipe import Recipe, RewardConfig
 from l2calib.reward import RewardBreakdown, aligned_errors, score
 
 F64 = torch.float64
@@ -274,3 +279,58 @@ class CalibrationEnv(ScoringEnv):
             pos = torch.where(valid[..., None], pos, torch.nan)  # lost poses: gaps in the plot
             out.append({"name": o.segment, "reference": ref.numpy(), "positions": pos.numpy()})
         return out
+
+
+def build_backend(recipe: Recipe, segments: Sequence[Segment], references, threads: int = 0):
+    """The recipe's backend plugin, prepared on ``segments`` with their ``references``."""
+    from l2calib.plugins import get_plugin
+
+    if threads:
+        torch.set_num_threads(threads)
+    backend = get_plugin("l2calib.backends", recipe.backend.name).build(
+        recipe.backend.options, imu=recipe.data.imu
+    )
+    backend.prepare(list(segments), list(references))
+    return backend
+
+
+def make_env(
+    recipe_data: dict[str, Any],
+    segments: Sequence[Segment],
+    references: Sequence[ReferenceTrajectory],
+    num_candidates: int,
+    threads: int = 0,
+    worker_index: int = 0,
+    hold: Any | None = None,
+):
+    """A :class:`CalibrationEnv` (top-level so worker processes and Ray actors can build it)."""
+    recipe = Recipe.model_validate(recipe_data)
+    backend = build_backend(recipe, segments, references, threads)
+    return CalibrationEnv(
+        backend,
+        references,
+        num_candidates,
+        recipe.reward,
+        time_offset=recipe.train.estimate_time_offset,
+        worker_index=worker_index,
+        hold=hold,
+    )
+
+
+def merge_shares(parts: Sequence[Any], total: int):
+    """One :class:`~l2calib.reward.RewardBreakdown` of ``total`` candidates from its shares.
+
+    Share ``i`` of ``n`` holds candidates ``i, i + n, ...`` (how the workers and the Ray actors
+    split a batch); shares may be empty when there are fewer candidates than workers.
+    """
+    from dataclasses import fields
+
+    from l2calib.reward import RewardBreakdown
+
+    n, merged = len(parts), {}
+    for f in fields(RewardBreakdown):
+        full = torch.empty(total, dtype=getattr(parts[0], f.name).dtype)
+        for i, part in enumerate(parts):
+            full[i::n] = getattr(part, f.name)
+        merged[f.name] = full
+    return RewardBreakdown(**merged)

@@ -1,9 +1,10 @@
-"""Building the calibration environment, in this process or spread over worker processes.
+"""Building the training environment: in this process, over worker processes, or on Ray.
 
 With ``workers > 1`` the K candidates of an iteration are split over a TorchRL ``ParallelEnv``;
-each worker holds its own prepared backend. The policy still samples all K actions in the main
-process, so a fixed seed gives the same candidates — and the same result — whatever the number
-of workers.
+each worker holds its own prepared backend. With ``train.executor: ray`` they are split over Ray
+actors instead (:mod:`l2calib.train.ray_executor`). The policy still samples all K actions in
+the main process, so a fixed seed gives the same candidates — and the same result — whatever
+the number of workers or actors.
 """
 
 from __future__ import annotations
@@ -20,44 +21,7 @@ from l2calib.data import Segment
 from l2calib.errors import ConfigError
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.recipe import Recipe
-
-
-def build_backend(recipe: Recipe, segments: Sequence[Segment], references, threads: int = 0):
-    """The recipe's backend plugin, prepared on ``segments`` with their ``references``."""
-    from l2calib.plugins import get_plugin
-
-    if threads:
-        torch.set_num_threads(threads)
-    backend = get_plugin("l2calib.backends", recipe.backend.name).build(
-        recipe.backend.options, imu=recipe.data.imu
-    )
-    backend.prepare(list(segments), list(references))
-    return backend
-
-
-def make_env(
-    recipe_data: dict[str, Any],
-    segments: Sequence[Segment],
-    references: Sequence[ReferenceTrajectory],
-    num_candidates: int,
-    threads: int = 0,
-    worker_index: int = 0,
-    hold: Any | None = None,
-):
-    """A :class:`~l2calib.train.env.CalibrationEnv` (top-level so worker processes can build it)."""
-    from l2calib.train.env import CalibrationEnv
-
-    recipe = Recipe.model_validate(recipe_data)
-    backend = build_backend(recipe, segments, references, threads)
-    return CalibrationEnv(
-        backend,
-        references,
-        num_candidates,
-        recipe.reward,
-        time_offset=recipe.train.estimate_time_offset,
-        worker_index=worker_index,
-        hold=hold,
-    )
+from l2calib.train.env import make_env, merge_shares
 
 
 def resolve_workers(candidates: int, workers: int | str) -> int:
@@ -80,10 +44,16 @@ def make_training_env(
 ):
     """One environment scoring ``train.candidates_per_iteration`` candidates per step.
 
+    ``train.executor: local`` (default): in this process, or on a ``ParallelEnv`` of
+    ``train.workers`` processes; ``ray``: on Ray actors (:mod:`l2calib.train.ray_executor`).
     ``hold``: the vertical lever-arm hold every worker applies (:mod:`l2calib.train.
     vertical_hold`), or ``None``.
     """
     K = recipe.train.candidates_per_iteration
+    if recipe.train.executor == "ray":
+        from l2calib.train.ray_executor import RayScoringEnv
+
+        return RayScoringEnv(recipe, segments, references, hold=hold)
     workers = resolve_workers(K, recipe.train.workers)
     data = recipe.model_dump(mode="json")
     if workers == 1:
@@ -137,12 +107,11 @@ def set_data_fraction(env, fraction: float) -> int:
         Scans each candidate is now estimated on (0 for an env that does not subsample, e.g.
         the policies' toy problem).
     """
-    from l2calib.train.env import CalibrationEnv
+    from l2calib.train.env import ScoringEnv
 
-    if isinstance(env, CalibrationEnv):
-        return env.use_data_fraction(fraction)
-    if not hasattr(env, "num_workers"):  # another ScoringEnv: always all of its data
-        return 0
+    if isinstance(env, ScoringEnv):  # in this process (or the driver of Ray actors)
+        use = getattr(env, "use_data_fraction", None)
+        return use(fraction) if use is not None else 0  # e.g. the toy: always all of its data
     counts = _started(env).use_data_fraction(fraction)  # the same call in every worker
     return int(counts[0])
 
@@ -162,23 +131,13 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
     Returns:
         The :class:`~l2calib.reward.RewardBreakdown` of the ``N`` candidates, in their order.
     """
-    from dataclasses import fields
+    from l2calib.train.env import ScoringEnv
 
-    from l2calib.reward import RewardBreakdown
-    from l2calib.train.env import CalibrationEnv
-
-    if isinstance(env, CalibrationEnv):
+    if isinstance(env, ScoringEnv):  # in this process (or the driver of Ray actors)
         return env.score_candidates(T_imu_lidar, time_offset_s)[0]
     n = env.num_workers
     parts = [breakdown for breakdown, _ in _started(env).score_share(T_imu_lidar, time_offset_s, n)]
-    merged = {}
-    for f in fields(RewardBreakdown):
-        first = getattr(parts[0], f.name)
-        full = torch.empty(T_imu_lidar.shape[0], dtype=first.dtype)
-        for i, part in enumerate(parts):
-            full[i::n] = getattr(part, f.name)
-        merged[f.name] = full
-    return RewardBreakdown(**merged)
+    return merge_shares(parts, T_imu_lidar.shape[0])
 
 
 def trajectory_previews(
@@ -193,9 +152,9 @@ def trajectory_previews(
         Per segment ``{"name", "reference": [M,3], "positions": [N,M,3]}`` (m), candidates in
         their order.
     """
-    from l2calib.train.env import CalibrationEnv
+    from l2calib.train.env import ScoringEnv
 
-    if isinstance(env, CalibrationEnv):
+    if isinstance(env, ScoringEnv):  # in this process (or the driver of Ray actors)
         return env.trajectory_share(T_imu_lidar, time_offset_s, 1)
     n = env.num_workers
     shares = _started(env).trajectory_share(T_imu_lidar, time_offset_s, n)

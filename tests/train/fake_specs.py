@@ -6,13 +6,13 @@ from l2calib.plugins import PluginSpec
 
 
 class FakeOptions(BaseModel):
-    pass
+    delay_s: float = 0.0
 
 
 def _make(config, **context):
     from fakes import FakeBackend
 
-    return FakeBackend()
+    return FakeBackend(delay_s=config.delay_s)
 
 
 FAKE = PluginSpec("fake-lio", "l2calib.backends", FakeOptions, _make, "fake backend for tests")

@@ -28,13 +28,18 @@ T_TRUE = torch.tensor(
 class FakeBackend(OdometryBackend):
     outputs_in_reference_frame = True
 
-    def __init__(self, *_, **__) -> None:
+    def __init__(self, *_, delay_s: float = 0.0, **__) -> None:
         self.refs: list[ReferenceTrajectory] = []
+        self.delay_s = delay_s  # a slow odometry, e.g. to kill a worker mid-batch
 
     def prepare(self, segments, references) -> None:
         self.refs = list(references)
 
     def evaluate(self, T_imu_lidar, time_offset_s=None):
+        if self.delay_s:
+            import time
+
+            time.sleep(self.delay_s)
         out = []
         delta = torch.linalg.inv(T_TRUE) @ T_imu_lidar
         for ref in self.refs:

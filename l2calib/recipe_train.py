@@ -1,0 +1,172 @@
+"""The recipe's ``train`` section: PPO settings, budgets, stopping, refinement, executor."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+from pydantic import Field, model_validator
+
+from l2calib.config_base import StrictModel
+
+
+class RayConfig(StrictModel):
+    """Where ``train.executor: ray`` scores candidates (``docs/scaling.md``)."""
+
+    address: str | None = Field(
+        None,
+        description="Ray cluster to join (e.g. ray://head:10001 or head:6379); null: the "
+        "RAY_ADDRESS environment variable, else a Ray instance started on this machine",
+    )
+    actors: Annotated[int, Field(ge=1)] | Literal["auto"] = Field(
+        "auto",
+        description="scoring actors, each holding one prepared odometry backend; auto: the "
+        "cluster's CPUs / threads_per_actor, at most candidates_per_iteration",
+    )
+    threads_per_actor: int = Field(1, ge=1, description="CPUs (torch threads) each actor uses")
+
+
+class TrainConfig(StrictModel):
+    """PPO settings and budgets."""
+
+    seed: int = 0
+    candidates_per_iteration: int = Field(32, ge=2)
+    max_iterations: int = Field(150, ge=1)
+    max_evaluations: int = Field(5000, ge=1)
+    estimate_time_offset: bool = True
+    init_time_offset_s: float | None = Field(
+        None,
+        ge=-0.5,
+        le=0.5,
+        description="starting value of the LiDAR-IMU time offset when estimate_time_offset "
+        "(s, t_imu = t_lidar + offset; `l2calib inspect` prints it); null: the reference's "
+        "clock check, else 0",
+    )
+    lr: float = Field(3e-2, gt=0, description="Adam rate of the spreads and the value head")
+    mean_step_scale: float = Field(
+        0.3,
+        ge=0,
+        description="Adam rate of the rotation/translation means = this × their current σ "
+        "(rad, m); 0: use lr for them too",
+    )
+    lr_schedule: Literal["constant", "cosine"] = "constant"
+    ppo_epochs: int = Field(4, ge=1)
+    clip_epsilon: float = Field(0.2, gt=0)
+    entropy_coef: float = Field(1e-3, ge=0)
+    max_grad_norm: float = Field(1.0, gt=0)
+    workers: Annotated[int, Field(ge=1)] | Literal["auto"] = Field(
+        "auto",
+        description="processes that run the odometry (same result for any count); auto: the "
+        "largest divisor of candidates_per_iteration not above the CPUs this process may use",
+    )
+    executor: Literal["local", "ray"] = Field(
+        "local",
+        description="what scores the candidates: local = this machine's worker processes "
+        "(train.workers); ray = Ray actors on a cluster (train.ray; pip install 'l2calib[ray]'). "
+        "The same seed gives the same result with either",
+    )
+    ray: RayConfig = Field(default_factory=RayConfig)
+    checkpoint_every: int = Field(10, ge=1)
+    stop_on_plateau: bool = Field(
+        False,
+        description="end PPO when the best reward stops rising once the rotation is narrow; "
+        "the refinement finishes (l2calib.train.ppo). Off by default: it fired only on weakly "
+        "excited data, and there PPO's reward was still short of the optimum (docs/design.md)",
+    )
+    plateau_window: int = Field(10, ge=2, description="iterations per plateau comparison")
+    plateau_min_gain: float = Field(
+        0.005, ge=0, description="best-reward gain per window below which PPO stops"
+    )
+    plateau_rotation_sigma_deg: float = Field(
+        2.0, gt=0, description="largest rotation σ at which the plateau stop may fire"
+    )
+    handover_rotation_sigma_deg: float | None = Field(
+        2.5,
+        gt=0,
+        description="end PPO once every rotation σ is at most this (deg) and every "
+        "translation σ at most handover_translation_sigma_m; the refinement finishes; "
+        "null: never",
+    )
+    handover_translation_sigma_m: float = Field(
+        0.20, gt=0, description="translation σ (m) for handover_rotation_sigma_deg"
+    )
+    coarse_to_fine: bool = Field(
+        True,
+        description="score wide policies on a part of the data, all of it once narrow "
+        "(l2calib.train.coarse)",
+    )
+    coarse_data_fraction: float = Field(
+        0.25, gt=0, le=1, description="data fraction while the policy is at its widest"
+    )
+    coarse_min_data_s: float = Field(
+        3.0,
+        ge=0,
+        description="the coarse part holds at least this much data (s): on an 8 s recording, "
+        "2 s of it led PPO to a wrong rotation where 3 s did not",
+    )
+    coarse_rotation_sigma_deg: float = Field(
+        20.0, gt=0, description="rotation σ at and above which the coarsest fraction is used"
+    )
+    fine_rotation_sigma_deg: float = Field(
+        2.0, gt=0, description="rotation σ at and below which all the data is used"
+    )
+    coarse_translation_sigma_m: float = Field(
+        0.3, gt=0, description="translation σ at and above which the coarsest fraction is used"
+    )
+    fine_translation_sigma_m: float = Field(
+        0.03, gt=0, description="translation σ at and below which all the data is used"
+    )
+    convergence_window: int = Field(15, ge=2, description="iterations the mode must stay put")
+    converged_step_deg: float = Field(0.1, gt=0, description="largest mode move in the window")
+    converged_step_m: float = Field(0.005, gt=0, description="largest mode move in the window")
+    converged_rotation_sigma_deg: float = Field(0.5, gt=0, description="largest rotation sigma")
+    converged_translation_sigma_m: float = Field(0.05, gt=0, description="largest trans. sigma")
+    refine_rounds: int = Field(
+        12,
+        ge=0,
+        description="after PPO, climb the reward from the policy's mode with this many batched "
+        "probe rounds (13 evaluations each, 15 with the time offset; l2calib.assess.refine); "
+        "0: off",
+    )
+    refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
+    restarts: int = Field(
+        1,
+        ge=0,
+        description="fresh PPO runs (other seeds) when the result fails the reference-agreement "
+        "check, e.g. a run stuck in a local optimum; the highest reward is kept; 0: off",
+    )
+    refine_trans_step_m: float = Field(0.04, gt=0, description="first translation step of refine")
+    refine_offset_step_s: float = Field(
+        0.002, gt=0, description="first time-offset step of refine (s; with estimate_time_offset)"
+    )
+    hold_vertical_translation: Literal["auto", "on", "off"] = Field(
+        "auto",
+        description="hold the lever arm's vertical component (along the IMU's measured up) at "
+        "policy.prior's value, else 0 m, instead of searching it: auto = when the data's "
+        "rotation is planar (a ground vehicle; planar_min_yaw_share), where the data cannot "
+        "determine it; the output names it as not estimated (l2calib.train.vertical_hold)",
+    )
+    planar_min_yaw_share: float = Field(
+        0.97,
+        gt=0,
+        le=1,
+        description="share of the rotation (sum of squared rates) about the vertical from which "
+        "the motion counts as planar (l2calib.selection.planar); the simulator's ground vehicle "
+        "gives 0.998, its drone 0.83-0.92, hand-held rigs 0.40-0.43",
+    )
+
+    @model_validator(mode="after")
+    def _coarse_above_fine(self) -> TrainConfig:
+        for kind in ("rotation_sigma_deg", "translation_sigma_m"):
+            fine, coarse = getattr(self, f"fine_{kind}"), getattr(self, f"coarse_{kind}")
+            if fine >= coarse:
+                raise ValueError(
+                    f"train.fine_{kind}={fine} must be below train.coarse_{kind}={coarse}"
+                )
+        return self
+
+    @property
+    def iteration_budget(self) -> int:
+        """PPO iterations at most: ``max_iterations``, capped by ``max_evaluations`` / K."""
+        return max(
+            1, min(self.max_iterations, self.max_evaluations // self.candidates_per_iteration)
+        )
