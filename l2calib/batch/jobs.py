@@ -65,14 +65,16 @@ def run_job(
     Args:
         job: The job.
         report: Called with ``(job.name, changed fields)`` as the job progresses.
-        resume: Continue the job's killed run in its out folder; a job whose
-            ``calibration.yaml`` is already there is kept as it is.
+        resume: Continue the job's killed run from its out folder's checkpoint; a job whose
+            ``calibration.yaml`` is already there is kept as it is; one killed before its first
+            checkpoint starts again (its folder moved aside).
         force: Move a non-empty out folder aside first.
         defaults: ``--set`` items applied before the job's own (e.g. ``train.workers``).
     """
     from l2calib.calibration import Calibration, RunHooks
     from l2calib.errors import L2CalibError
     from l2calib.recipe import load_recipe
+    from l2calib.train.checkpoint import CHECKPOINT_NAME
 
     state = JobState(job.name, state="running", out=str(job.out))
     t0 = time.monotonic()
@@ -89,8 +91,11 @@ def run_job(
                               "stage": "training"})  # fmt: skip
 
         hooks = RunHooks(stage=lambda msg: report(job.name, {"stage": msg}), progress=progress)
-        again = resume and job.out.is_dir()
-        run = Calibration(recipe, job.out, resume=again, force=force and not again, hooks=hooks)
+        # --resume: a killed job continues from its checkpoint; one killed before its first
+        # checkpoint starts again, its folder moved aside (never deleted)
+        again = resume and (job.out / CHECKPOINT_NAME).is_file()
+        aside = force or (resume and not again)
+        run = Calibration(recipe, job.out, resume=again, force=aside and not again, hooks=hooks)
         result = run.run(bags=job.bags)
         state.state, state.status = "done", result.status
         if result.T_imu_lidar is not None:
