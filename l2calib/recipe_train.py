@@ -127,6 +127,14 @@ class TrainConfig(StrictModel):
         "probe rounds (13 evaluations each, 15 with the time offset; l2calib.assess.refine); "
         "0: off",
     )
+    polish_rounds: int = Field(
+        0,
+        ge=0,
+        description="after the refinement, Newton steps on a quadratic model of the reward "
+        "fitted from one batch of 73 candidates (99 with the time offset) each, kept only where "
+        "the reward rises (l2calib.assess.polish); follows coupled axes the per-axis refinement "
+        "stops short on. 0: off (opt-in until measured on weakly excited data)",
+    )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
         1,

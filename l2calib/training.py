@@ -382,6 +382,16 @@ def _attempt(
             refined.start_reward, refined.reward, refined.moved_deg, 100 * refined.moved_m,
             refined.evaluations,
         )  # fmt: skip
+    polished = None
+    if cfg.polish_rounds > 0:
+        from l2calib.assess.polish import polish
+
+        say(f"polishing the result: Newton steps on the reward (at most {cfg.polish_rounds})")
+        polished = polish(
+            _Scorer(env, best.time_offset_s), best, cfg.polish_rounds,
+            hold=None if hold is None else hold.apply,
+        )  # fmt: skip
+        best = polished.extrinsic
     T_mode, offset = best.T_imu_lidar, best.time_offset_s
     score = _Scorer(env, offset)
     stage_s["refinement"] = time.monotonic() - clock
@@ -403,6 +413,7 @@ def _attempt(
     after_training = (
         candidates.shape[0]
         + (refined.evaluations if refined else 0)
+        + (polished.evaluations if polished else 0)
         + (probe_evaluations() if offset_res else 0)
     )  # all on the full data
     return CalibrationResult(
@@ -430,6 +441,7 @@ def _attempt(
             # which reference the reward compared with, and why (e.g. the recipe's fallback)
             "reference": {"sources": sources, "notes": list(data.notes)},
             **({"refine": _refine_summary(refined)} if refined else {}),
+            **({"polish": _polish_summary(polished)} if polished else {}),
             **(
                 {"vertical_hold": {**hold.to_dict(), "train_settings": planar_changed}}
                 if hold is not None
@@ -457,4 +469,14 @@ def _refine_summary(refined: Any) -> dict[str, Any]:
             else {}
         ),
         "evaluations": int(refined.evaluations),
+    }
+
+
+def _polish_summary(polished: Any) -> dict[str, Any]:
+    """What the Newton polish did (``calibration.yaml`` → ``polish``)."""
+    return {
+        "start_reward": round(polished.start_reward, 6),
+        "polished_reward": round(polished.reward, 6),
+        "newton_steps_kept": int(polished.rounds),
+        "evaluations": int(polished.evaluations),
     }

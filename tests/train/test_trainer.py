@@ -206,3 +206,14 @@ def test_the_recorded_data_share_is_what_the_backend_scored(fake_backend_env, mo
     assert any(f < 1.0 for f in asked)  # the trainer asked for a part (the policy is wide)
     assert [r.data_fraction for r in outcome.history] == [1.0, 1.0]
     assert [r.candidate_scans for r in outcome.history] == [8 * 40, 8 * 40]
+
+
+def test_the_newton_polish_runs_after_the_refinement_and_is_counted(fake_backend_env):
+    result, outcome = _run(_recipe(polish_rounds=2))
+    polished = result.extra["polish"]
+    assert polished["polished_reward"] >= polished["start_reward"]
+    assert polished["start_reward"] >= result.extra["refine"]["refined_reward"] - 1e-12
+    assert polished["evaluations"] in (100, 200)  # 99 stencil candidates + the step, per round
+    n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()
+    n_refine = result.extra["refine"]["evaluations"]
+    assert result.evaluations == 3 * 8 + n_refine + polished["evaluations"] + n_probes
