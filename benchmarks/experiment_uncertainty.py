@@ -10,7 +10,8 @@ multiplied as the resolution probe does; and the time offset) and at every pair 
 batch. The cost is the reward's own sum of pose errors, ``C = Σ e_t/4 + e_r/π²``, split into
 blocks of ``--block-s`` seconds of each segment. Then:
 
-* ``H``: the Hessian of ``C`` (central differences; step 0.5°, 2 cm, 1 ms);
+* ``H``: the Hessian of ``C`` (central differences on :mod:`l2calib.assess.polish`'s stencil:
+  0.5°, 2 cm, 1 ms);
 * ``g_b``: each block's gradient; ``M = B/(B−1) Σ (g_b − ḡ)(g_b − ḡ)ᵀ``;
 * covariance ``H⁻¹ M H⁻¹`` (a sandwich / block-HAC estimate of the minimiser's spread), its
   95 % bound per axis (1.96 σ), and the Newton step ``−H⁻¹ Σ g_b`` (how far the cost's own
@@ -42,32 +43,6 @@ import numpy as np
 import torch
 
 RESULTS = Path(__file__).parent / "results" / "experiments" / "uncertainty_sandwich.json"
-STEPS = (math.radians(0.5),) * 3 + (0.02,) * 3 + (0.001,)  # rad, m, s
-
-
-def stencil() -> np.ndarray:
-    """``[1 + 2·7 + 4·21, 7]`` perturbations: centre, ± each axis, ±± each pair."""
-    n, h = len(STEPS), np.array(STEPS)
-    rows = [np.zeros(n)]
-    for i in range(n):
-        for s in (1, -1):
-            rows.append(np.eye(n)[i] * s * h[i])
-    for i in range(n):
-        for j in range(i + 1, n):
-            for si in (1, -1):
-                for sj in (1, -1):
-                    rows.append(np.eye(n)[i] * si * h[i] + np.eye(n)[j] * sj * h[j])
-    return np.array(rows)
-
-
-def perturbed(T: torch.Tensor, d: np.ndarray) -> torch.Tensor:
-    """``T · exp(δ)`` for each row's rotation and translation part."""
-    from l2calib import geometry as geo
-
-    out = torch.eye(4, dtype=torch.float64).repeat(len(d), 1, 1)
-    out[:, :3, :3] = geo.so3_exp(torch.as_tensor(d[:, :3]))
-    out[:, :3, 3] = torch.as_tensor(d[:, 3:6])
-    return T[None] @ out
 
 
 def block_costs(env, T: torch.Tensor, offsets: torch.Tensor, block_s: float) -> np.ndarray:
@@ -91,18 +66,9 @@ def block_costs(env, T: torch.Tensor, offsets: torch.Tensor, block_s: float) -> 
 
 def sandwich(C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Covariance ``H⁻¹ M H⁻¹``, ``H`` and the Newton step from the stencil's block costs."""
-    n, h = len(STEPS), np.array(STEPS)
-    total = C.sum(1)
-    g = (C[1 : 2 * n : 2] - C[2 : 2 * n + 1 : 2]) / (2 * h[:, None])  # [n, B]
-    H = np.zeros((n, n))
-    for i in range(n):
-        H[i, i] = (total[1 + 2 * i] - 2 * total[0] + total[2 + 2 * i]) / h[i] ** 2
-    k = 1 + 2 * n
-    for i in range(n):
-        for j in range(i + 1, n):
-            pp, pm, mp, mm = total[k : k + 4]
-            k += 4
-            H[i, j] = H[j, i] = (pp - pm - mp + mm) / (4 * h[i] * h[j])
+    from l2calib.assess.polish import derivatives
+
+    g, H = derivatives(C, 7)  # g: [7, B] per-block gradients
     B = C.shape[1]
     gc = g - g.mean(1, keepdims=True)
     Hi = np.linalg.pinv(H)
@@ -122,11 +88,13 @@ def run_case(case: str, rows: list[dict[str, Any]], block_s: float) -> list[dict
     """The experiment on one case's stored rows."""
     from benchmarks.bench_calibration import exact_reference_env
     from l2calib import geometry as geo
+    from l2calib.assess.polish import moved as perturbed
+    from l2calib.assess.polish import stencil
 
     env, runs, _, _ = exact_reference_env(case)
     T_true = torch.from_numpy(runs[0].T_imu_lidar)
     true_offset = float(runs[0].time_offset_s)
-    d, out = stencil(), []
+    d, out = stencil(7), []
     for r in rows:
         T = torch.tensor(r["T_imu_lidar"], dtype=torch.float64)
         offset = r.get("time_offset_s") or 0.0

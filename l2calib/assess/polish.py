@@ -75,17 +75,30 @@ def moved(T: torch.Tensor, delta: np.ndarray) -> torch.Tensor:
     return T[None] @ step
 
 
-def newton_step(f: np.ndarray, n: int, max_steps: float) -> np.ndarray:
-    """The capped Newton step from ``f`` at the :func:`stencil` points (``[n]``)."""
+def derivatives(f: np.ndarray, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """Gradient ``[n, ...]`` and Hessian ``[n, n]`` by central differences from ``f``.
+
+    ``f``: values at the :func:`stencil` points, ``[P]`` or ``[P, B]`` (then one gradient per
+    column, e.g. per block of data; the Hessian of the columns' sum).
+    """
     h = np.array(STEPS[:n])
-    grad = (f[1 : 2 * n : 2] - f[2 : 2 * n + 1 : 2]) / (2 * h)
-    H = np.diag((f[1 : 2 * n : 2] - 2 * f[0] + f[2 : 2 * n + 1 : 2]) / h**2)
+    scale = h.reshape(-1, *([1] * (f.ndim - 1)))
+    grad = (f[1 : 2 * n : 2] - f[2 : 2 * n + 1 : 2]) / (2 * scale)
+    total = f if f.ndim == 1 else f.sum(1)
+    H = np.diag((total[1 : 2 * n : 2] - 2 * total[0] + total[2 : 2 * n + 1 : 2]) / h**2)
     k = 1 + 2 * n
     for i in range(n):
         for j in range(i + 1, n):
-            pp, pm, mp, mm = f[k : k + 4]
+            pp, pm, mp, mm = total[k : k + 4]
             k += 4
             H[i, j] = H[j, i] = (pp - pm - mp + mm) / (4 * h[i] * h[j])
+    return grad, H
+
+
+def newton_step(f: np.ndarray, n: int, max_steps: float) -> np.ndarray:
+    """The capped Newton step from ``f`` at the :func:`stencil` points (``[n]``)."""
+    h = np.array(STEPS[:n])
+    grad, H = derivatives(f, n)
     # In units of the stencil, so that rotation, translation and time compare.
     Hs = H * np.outer(h, h)
     values, vectors = np.linalg.eigh(Hs)
