@@ -94,8 +94,8 @@ def run_job(
         # --resume: a killed job continues from its checkpoint; one killed before its first
         # checkpoint starts again, its folder moved aside (never deleted)
         again = resume and (job.out / CHECKPOINT_NAME).is_file()
-        aside = force or (resume and not again)
-        run = Calibration(recipe, job.out, resume=again, force=aside and not again, hooks=hooks)
+        aside = force or (resume and not again)  # ignored when resuming
+        run = Calibration(recipe, job.out, resume=again, force=aside, hooks=hooks)
         result = run.run(bags=job.bags)
         state.state, state.status = "done", result.status
         if result.T_imu_lidar is not None:

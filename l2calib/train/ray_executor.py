@@ -94,10 +94,10 @@ class ScoringActor:
         from l2calib.train.env import make_env
 
         self.env = make_env(recipe_data, segments, references, 1, threads=threads, hold=hold)
-        self.fraction = 1.0
+        self.fraction, self.scans = 1.0, self.env.use_data_fraction(1.0)
 
     def _use(self, fraction: float) -> int:
-        if fraction != self.fraction or not hasattr(self, "scans"):
+        if fraction != self.fraction:
             self.fraction, self.scans = fraction, self.env.use_data_fraction(fraction)
         return self.scans
 
