@@ -354,9 +354,32 @@ def _summary(rows: list[dict[str, Any]], failed: list[dict[str, Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: ``backend.options.start_biases: auto`` landed then: before it the filters started with zero
+#: IMU biases everywhere; ``auto`` now estimates them on well-excited (hand-held) data.
+START_BIASES_AUTO = "2026-12-04 15:20"
+
+
+def _before_start_biases(rows: list[dict[str, Any]]) -> str:
+    """A note naming the hand-held rows measured before :data:`START_BIASES_AUTO`."""
+    old = sorted(
+        f"{r['case']} (seed {r['train_seed']})"
+        for r in rows
+        if r["case"].startswith("handheld")
+        and r.get("machine", {}).get("date", "") < START_BIASES_AUTO
+    )
+    if not old:
+        return ""
+    return (
+        f"\nMeasured before `backend.options.start_biases: auto` ({START_BIASES_AUTO}; the filters "
+        "started with zero IMU biases, which `auto` now estimates on hand-held data; uav and ugv "
+        f"rows are unaffected): {', '.join(old)}.\n"
+    )
+
+
 def _render(results: dict[str, Any]) -> str:
     """The markdown of a results JSON: rows, the over-seeds summary, failed runs."""
     md = _markdown(results["rows"]) + _summary(results["rows"], results.get("failed", []))
+    md += _before_start_biases(results["rows"])
     if results.get("failed"):
         md += "\nFailed (no result):\n\n" + "".join(
             f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in results["failed"]

@@ -105,6 +105,8 @@ class ScanGraph:
         p: ``[3]`` start ``t_world_imu`` (m).
         v: ``[3]`` start velocity (world, m/s).
         settings: Prior sigmas and iSAM2 settings.
+        bias: ``[6]`` start accelerometer bias (m/s²) then gyro bias (rad/s), IMU frame; zero
+            if not given.
     """
 
     def __init__(
@@ -114,6 +116,7 @@ class ScanGraph:
         p: np.ndarray,
         v: np.ndarray,
         settings: GraphSettings,
+        bias: np.ndarray | None = None,
     ) -> None:
         self.params = params
         self.settings = settings
@@ -123,7 +126,11 @@ class ScanGraph:
         self.isam = gtsam.ISAM2(isam_params)
         s = settings.init_sigmas
         pose = _pose(R, p)
-        self.bias = gtsam.imuBias.ConstantBias()
+        self.bias = (
+            gtsam.imuBias.ConstantBias()
+            if bias is None
+            else gtsam.imuBias.ConstantBias(np.asarray(bias[:3]), np.asarray(bias[3:]))
+        )
         self.nav = gtsam.NavState(pose, np.asarray(v, dtype=np.float64))
         self.index = 0
         graph = gtsam.NonlinearFactorGraph()

@@ -106,6 +106,7 @@ def run_segment_gtsam(
             state.p[b].numpy(),
             state.v[b].numpy(),
             settings.graph,
+            torch.cat([state.ba[b], state.bg[b]]).numpy(),
         )
         for b in range(batch.B)
     ]

@@ -14,6 +14,11 @@ accelerometer is read at ``t_s + time_offset_s`` on its own clock for the refere
 paired at equal stamps; on a simulated hand-held recording whose IMU lags by 50 ms that cost
 little: the reward at the true extrinsic and offset rose from 0.9322 to 0.9325,
 ``benchmarks/results/experiments/time_offset_plus50.json``).
+
+With ``start_biases: estimate`` (the default) the gyro and accelerometer biases start from a
+least-squares fit over the segment and gravity is fitted with them
+(:mod:`l2calib_backends.start_bias`); with ``zero`` the biases start at zero and gravity is the
+formula above, which holds the accelerometer bias where the attitude barely changes.
 """
 
 from __future__ import annotations
@@ -27,6 +32,7 @@ from torch import Tensor
 from l2calib import geometry as geo
 from l2calib.errors import BackendError
 from l2calib.trajectory import Trajectory
+from l2calib_backends import start_bias
 from l2calib_backends.prepare import PreparedSegment
 from l2calib_backends.state import BA, BG, DIM, GRAV, POS, TH, VEL, FilterState
 
@@ -48,6 +54,13 @@ class ReferenceMotion:
             when a candidate has a time offset.
         R_a, v_a, w_a / R_b, v_b, w_b: LiDAR motion at the first and last scan end.
         span_s: Time between first and last scan end (s).
+        start_biases: ``estimate`` (gyro and accelerometer biases and gravity from
+            :mod:`l2calib_backends.start_bias`), ``gyro`` (the gyro bias only) or ``zero``.
+        all_gyro: ``[A, 3]`` every gyro sample of the segment (rad/s, IMU clock).
+        bounds: ``[C + 1]`` chunk bounds into the ``imu_t`` samples.
+        R_B, v_B, dR_B: ``[C + 1, ...]`` at the bounds: LiDAR orientation, the central
+            differences (over ±``_H_S``) of the LiDAR position and orientation matrix: the
+            mean velocity of any point of the LiDAR body over that window.
     """
 
     R0: Tensor
@@ -66,6 +79,12 @@ class ReferenceMotion:
     v_b: Tensor
     w_b: Tensor
     span_s: float
+    start_biases: str
+    all_gyro: Tensor
+    bounds: Tensor
+    R_B: Tensor
+    v_B: Tensor
+    dR_B: Tensor
 
 
 def _kinematics(ref: Trajectory, stamps_ns: np.ndarray, name: str):
@@ -90,20 +109,26 @@ def _kinematics(ref: Trajectory, stamps_ns: np.ndarray, name: str):
     dt = torch.from_numpy((query[2 * n :] - query[:n]).astype(np.float64) * 1e-9).clamp_min(1e-3)
     v = (T_p[:, :3, 3] - T_m[:, :3, 3]) / dt[:, None]
     w = geo.so3_log(T_p[:, :3, :3] @ T_m[:, :3, :3].transpose(-1, -2)) / dt[:, None]
-    return T_0[:, :3, :3], T_0[:, :3, 3], v, w
+    dR = (T_p[:, :3, :3] - T_m[:, :3, :3]) / dt[:, None, None]
+    return T_0[:, :3, :3], T_0[:, :3, 3], v, w, dR
 
 
 def reference_motion(
-    seg: PreparedSegment, reference: Trajectory, start_scans: list[int]
+    seg: PreparedSegment,
+    reference: Trajectory,
+    start_scans: list[int],
+    start_biases: str = "estimate",
 ) -> ReferenceMotion:
     """Samples the reference at the start scans, the first/last scan end and the IMU samples."""
     starts = seg.end_stamps_ns[start_scans]
-    R0, p0, v0, w0 = _kinematics(reference, starts, seg.name)
+    R0, p0, v0, w0, _ = _kinematics(reference, starts, seg.name)
     ends = seg.end_stamps_ns[[0, -1]]
-    R, _, v, w = _kinematics(reference, ends, seg.name)
+    R, _, v, w, _ = _kinematics(reference, ends, seg.name)
     imu_ns = seg.start_ns + np.round(seg.imu.t.numpy() * 1e9).astype(np.int64)
     inside = (imu_ns >= ends[0]) & (imu_ns <= ends[1])
-    R_imu, _, _, _ = _kinematics(reference, imu_ns[inside], seg.name)
+    R_imu, _, v_imu, _, dR_imu = _kinematics(reference, imu_ns[inside], seg.name)
+    imu_t = seg.imu.t[torch.from_numpy(inside)]
+    bounds = start_bias.chunk_bounds(imu_t, margin_s=_H_S)
     return ReferenceMotion(
         R0=R0,
         p0=p0,
@@ -111,7 +136,7 @@ def reference_motion(
         w0=w0,
         R_imu=R_imu,
         accel=seg.imu.accel[torch.from_numpy(inside)],
-        imu_t=seg.imu.t[torch.from_numpy(inside)],
+        imu_t=imu_t,
         all_t=seg.imu.t,
         all_accel=seg.imu.accel,
         R_a=R[0],
@@ -121,6 +146,12 @@ def reference_motion(
         v_b=v[1],
         w_b=w[1],
         span_s=float((ends[1] - ends[0]) * 1e-9),
+        start_biases=start_biases,
+        all_gyro=seg.imu.gyro,
+        bounds=bounds,
+        R_B=R_imu[bounds],
+        v_B=v_imu[bounds],
+        dR_B=dR_imu[bounds],
     )
 
 
@@ -130,14 +161,41 @@ def _imu_velocity(R_wl: Tensor, v_wl: Tensor, w_w: Tensor, t_li: Tensor) -> Tens
     return v_wl + torch.cross(w_w.expand_as(arm), arm, dim=-1)
 
 
-def _shifted_accel(motion: ReferenceMotion, time_offset_s: Tensor) -> Tensor:
-    """``[K, S, 3]`` accelerometer at ``imu_t + offset_k`` (IMU clock), linearly interpolated."""
+def _shifted(motion: ReferenceMotion, values: Tensor, time_offset_s: Tensor) -> Tensor:
+    """``[K, S, 3]`` IMU ``values [A, 3]`` at ``imu_t + offset_k`` (IMU clock), interpolated."""
     t = motion.all_t
     query = (motion.imu_t[None] + time_offset_s[:, None]).clamp(t[0], t[-1])
     hi = torch.searchsorted(t, query.contiguous(), right=True).clamp(1, len(t) - 1)
     lo = hi - 1
     w = ((query - t[lo]) / (t[hi] - t[lo]).clamp_min(1e-9))[..., None]
-    return (1 - w) * motion.all_accel[lo] + w * motion.all_accel[hi]
+    return (1 - w) * values[lo] + w * values[hi]
+
+
+def _gyro_bias(motion: ReferenceMotion, R_il: Tensor, time_offset_s: Tensor | None) -> Tensor:
+    """``[K, 3]`` gyro biases (rad/s) of the candidates (:func:`start_bias.gyro_bias`)."""
+    K = R_il.shape[0]
+    if time_offset_s is None or not bool(time_offset_s.any()):
+        inside = (motion.all_t >= motion.imu_t[0]) & (motion.all_t <= motion.imu_t[-1])
+        gyro = motion.all_gyro[inside].expand(K, -1, -1)
+    else:
+        gyro = _shifted(motion, motion.all_gyro, time_offset_s.to(motion.all_t.dtype))
+    return start_bias.gyro_bias(gyro, motion.imu_t, motion.bounds, motion.R_B, R_il)
+
+
+def _start_biases(
+    motion: ReferenceMotion,
+    force_world: Tensor,
+    R_il: Tensor,
+    t_li: Tensor,
+    time_offset_s: Tensor | None,
+) -> tuple[Tensor, Tensor, Tensor]:
+    """Gyro bias, accel bias and gravity ``[K, 3]`` each (:mod:`l2calib_backends.start_bias`)."""
+    bg = _gyro_bias(motion, R_il, time_offset_s)
+    ba, g = start_bias.accel_bias_and_gravity(
+        force_world, motion.R_imu, R_il.transpose(-1, -2), motion.imu_t, motion.bounds,
+        (motion.v_B, motion.dR_B), t_li, _H_S,
+    )  # fmt: skip
+    return bg, ba, g
 
 
 def initial_states(
@@ -159,12 +217,20 @@ def initial_states(
     if time_offset_s is None or not bool(time_offset_s.any()):
         a_lidar = torch.einsum("kij,sj->ksi", R_li, motion.accel)
     else:
-        shifted = _shifted_accel(motion, time_offset_s.to(motion.all_t.dtype))
+        shifted = _shifted(motion, motion.all_accel, time_offset_s.to(motion.all_t.dtype))
         a_lidar = torch.einsum("kij,ksj->ksi", R_li, shifted)
-    mean_force = torch.einsum("sij,ksj->ki", motion.R_imu, a_lidar) / max(len(motion.accel), 1)
-    v_a = _imu_velocity(motion.R_a, motion.v_a, motion.w_a, t_li)
-    v_b = _imu_velocity(motion.R_b, motion.v_b, motion.w_b, t_li)
-    g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
+    zeros = torch.zeros(K, 3, dtype=T_imu_lidar.dtype)
+    if motion.start_biases == "estimate" and len(motion.bounds) > 1:
+        force_world = torch.einsum("sij,ksj->ksi", motion.R_imu, a_lidar)
+        bg, ba, g = _start_biases(motion, force_world, R_il, t_li, time_offset_s)
+    else:
+        mean_force = torch.einsum("sij,ksj->ki", motion.R_imu, a_lidar) / max(len(motion.accel), 1)
+        v_a = _imu_velocity(motion.R_a, motion.v_a, motion.w_a, t_li)
+        v_b = _imu_velocity(motion.R_b, motion.v_b, motion.w_b, t_li)
+        g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
+        bg, ba = zeros, zeros.clone()
+        if motion.start_biases == "gyro" and len(motion.bounds) > 1:
+            bg = _gyro_bias(motion, R_il, time_offset_s)
     # Start states per (candidate, window).
     R0 = motion.R0[None].expand(K, -1, -1, -1)  # [K, W, 3, 3]
     R_wi = (R0 @ R_li[:, None]).reshape(K * W, 3, 3)
@@ -183,6 +249,10 @@ def initial_states(
     ):
         idx = torch.arange(block.start, block.stop)
         P[:, idx, idx] = sigmas[key] ** 2
-    zeros = torch.zeros(K * W, 3, dtype=T_imu_lidar.dtype)
-    g_b = g[:, None].expand(K, W, 3).reshape(K * W, 3)
-    return FilterState(R=R_wi, p=p_wi, v=v_wi, bg=zeros, ba=zeros.clone(), g=g_b, P=P)
+
+    def per_filter(x: Tensor) -> Tensor:
+        return x[:, None].expand(K, W, 3).reshape(K * W, 3)
+
+    return FilterState(
+        R=R_wi, p=p_wi, v=v_wi, bg=per_filter(bg), ba=per_filter(ba), g=per_filter(g), P=P
+    )

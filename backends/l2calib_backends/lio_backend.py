@@ -106,14 +106,16 @@ class LioBackend(OdometryBackend):
         weak = rate < c.weak_excitation_rate_rad_s
         self.window_scans = resolve_window_scans(c, self._segments)
         self._use_init_sigmas(c.init_sigmas(weak))
+        self.start_biases = c.start_bias_mode(weak)
         _log.info(
-            "mean |ω| %.2f rad/s (%s): %s, start priors %s",
+            "mean |ω| %.2f rad/s (%s): %s, start priors %s, start biases %s",
             rate,
             "weakly excited" if weak else "well excited",
             "one continuous run per segment"
             if self.window_scans == 0
             else f"windows of {self.window_scans} scans",
             self.init_sigmas,
+            self.start_biases,
         )
         self._starts = [window_starts(len(s.measurements), self.window_scans) for s in segments]
         self._plans = [
@@ -126,7 +128,7 @@ class LioBackend(OdometryBackend):
                 for s, r, st in zip(segments, references, self._starts, strict=True)
             ]
         self._motions = [
-            reference_motion(p, r.trajectory, st)
+            reference_motion(p, r.trajectory, st, self.start_biases)
             for p, r, st in zip(self._segments, references, self._starts, strict=True)
         ]
         self._maps = [None] * len(segments)

@@ -69,8 +69,21 @@ class LioOptions(BaseModel):
         "weakly excited data, where the whole-segment gravity estimate absorbs the bias (the "
         f"attitude barely changes), else {AUTO_ACCEL_BIAS_SIGMA[1]}",
     )
+    start_biases: Literal["auto", "estimate", "gyro", "zero"] = Field(
+        "auto",
+        description="IMU biases at a filter's start: estimate (least squares of the segment's "
+        "IMU against the reference motion, per candidate), gyro (the gyro bias only), zero; "
+        "auto: estimate on well-excited data, zero on weakly excited data (there a candidate's "
+        "own biases take up its rotation error and the search loses its way)",
+    )
     threads: int = Field(0, ge=0, description="torch threads (0: leave torch's default)")
     seed: int = 0
+
+    def start_bias_mode(self, weak_excitation: bool) -> str:
+        """``start_biases`` with ``auto`` resolved for the data's excitation."""
+        if self.start_biases != "auto":
+            return self.start_biases
+        return "zero" if weak_excitation else "estimate"
 
     def init_sigmas(self, weak_excitation: bool = False) -> dict[str, float]:
         """Prior standard deviations of each window's start state, by state block."""

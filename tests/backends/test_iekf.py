@@ -158,9 +158,9 @@ def test_auto_window_follows_rotation_rate(rate, expected):
 
 
 def test_auto_settings_on_simulated_motion(sim):
-    # profile -> (window_scans, accel-bias and gravity start sigmas in m/s²)
-    reference = {"handheld": (10, 0.1), "uav": (0, 0.01)}
-    for profile, (window, sigma) in reference.items():
+    # profile -> (window_scans, accel-bias and gravity start sigmas in m/s², start biases)
+    reference = {"handheld": (10, 0.1, "estimate"), "uav": (0, 0.01, "zero")}
+    for profile, (window, sigma, biases) in reference.items():
         run = sim(profile, duration_s=4.0)
         seq = run.sequence()
         seg = seq.segment(seq.start_ns + 1_000_000_000, seq.end_ns)
@@ -170,8 +170,10 @@ def test_auto_settings_on_simulated_motion(sim):
             assert backend.window_scans == window, (name, profile)
             assert backend.init_sigmas["ba"] == sigma, (name, profile)
             assert backend.init_sigmas.get("grav", sigma) == sigma, (name, profile)
+            assert backend.start_biases == biases, (name, profile)
     explicit = _backend(init_sigma_accel_bias_m_s2=0.3).config.init_sigmas(weak_excitation=True)
     assert explicit["ba"] == 0.3 and explicit["grav"] == 0.01
+    assert _backend(start_biases="estimate").config.start_bias_mode(True) == "estimate"
 
 
 def test_segments_in_different_world_frames_get_their_own_shared_map(handheld_run):

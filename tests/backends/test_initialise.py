@@ -7,7 +7,7 @@ from dataclasses import replace
 import torch
 
 from l2calib import geometry as geo
-from l2calib_backends.initialise import ReferenceMotion, _shifted_accel, initial_states
+from l2calib_backends.initialise import ReferenceMotion, _shifted, initial_states
 
 
 def _motion(n: int = 200, rate_hz: float = 100.0) -> ReferenceMotion:
@@ -24,12 +24,16 @@ def _motion(n: int = 200, rate_hz: float = 100.0) -> ReferenceMotion:
         R0=eye[None], p0=zeros[None], v0=zeros[None], w0=zeros[None],
         R_imu=rot[inside], accel=accel[inside], imu_t=t[inside], all_t=t, all_accel=accel,
         R_a=eye, v_a=zeros, w_a=zeros, R_b=eye, v_b=zeros, w_b=zeros, span_s=1.6,
+        start_biases="zero",
+        all_gyro=torch.zeros(n, 3, dtype=torch.float64), bounds=torch.tensor([0, n - 41]),
+        R_B=eye[None].repeat(2, 1, 1), v_B=zeros[None].repeat(2, 1), dR_B=eye[None].repeat(2, 1, 1),
     )  # fmt: skip
 
 
 def test_a_whole_sample_shift_reads_the_sample_that_far_away():
     motion = _motion()
-    shifted = _shifted_accel(motion, torch.tensor([0.0, 0.03, -0.05], dtype=torch.float64))
+    offsets = torch.tensor([0.0, 0.03, -0.05], dtype=torch.float64)
+    shifted = _shifted(motion, motion.all_accel, offsets)
     assert torch.allclose(shifted[0], motion.accel)  # no offset: the paired samples
     assert torch.allclose(shifted[1], motion.all_accel[23:183])  # +30 ms = 3 samples later
     assert torch.allclose(shifted[2], motion.all_accel[15:175])  # −50 ms = 5 samples earlier
