@@ -37,6 +37,7 @@ from l2calib_backends.prepare import PreparedSegment
 from l2calib_backends.state import BA, BG, DIM, GRAV, POS, TH, VEL, FilterState
 
 _H_S = 0.05  # half-width of the central differences (s)
+PLAUSIBLE = 3.0  # estimated start biases beyond this many prior sigmas are not used
 
 
 @dataclass(frozen=True)
@@ -220,17 +221,24 @@ def initial_states(
         shifted = _shifted(motion, motion.all_accel, time_offset_s.to(motion.all_t.dtype))
         a_lidar = torch.einsum("kij,ksj->ksi", R_li, shifted)
     zeros = torch.zeros(K, 3, dtype=T_imu_lidar.dtype)
+    mean_force = torch.einsum("sij,ksj->ki", motion.R_imu, a_lidar) / max(len(motion.accel), 1)
+    v_a = _imu_velocity(motion.R_a, motion.v_a, motion.w_a, t_li)
+    v_b = _imu_velocity(motion.R_b, motion.v_b, motion.w_b, t_li)
+    g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
+    bg, ba = zeros, zeros.clone()
+    if motion.start_biases == "gyro" and len(motion.bounds) > 1:
+        bg = _gyro_bias(motion, R_il, time_offset_s)
     if motion.start_biases == "estimate" and len(motion.bounds) > 1:
         force_world = torch.einsum("sij,ksj->ksi", motion.R_imu, a_lidar)
-        bg, ba, g = _start_biases(motion, force_world, R_il, t_li, time_offset_s)
-    else:
-        mean_force = torch.einsum("sij,ksj->ki", motion.R_imu, a_lidar) / max(len(motion.accel), 1)
-        v_a = _imu_velocity(motion.R_a, motion.v_a, motion.w_a, t_li)
-        v_b = _imu_velocity(motion.R_b, motion.v_b, motion.w_b, t_li)
-        g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
-        bg, ba = zeros, zeros.clone()
-        if motion.start_biases == "gyro" and len(motion.bounds) > 1:
-            bg = _gyro_bias(motion, R_il, time_offset_s)
+        bg_e, ba_e, g_e = _start_biases(motion, force_world, R_il, t_li, time_offset_s)
+        # Biases beyond PLAUSIBLE priors' sigmas are a wrong rotation's, not the IMU's: such
+        # candidates start as without the estimate, so that they are not helped to fit.
+        fits = (bg_e.norm(dim=-1) <= PLAUSIBLE * sigmas["bg"]) & (
+            ba_e.norm(dim=-1) <= PLAUSIBLE * sigmas["ba"]
+        )
+        bg = torch.where(fits[:, None], bg_e, bg)
+        ba = torch.where(fits[:, None], ba_e, ba)
+        g = torch.where(fits[:, None], g_e, g)
     # Start states per (candidate, window).
     R0 = motion.R0[None].expand(K, -1, -1, -1)  # [K, W, 3, 3]
     R_wi = (R0 @ R_li[:, None]).reshape(K * W, 3, 3)

@@ -103,9 +103,8 @@ def accel_bias_and_gravity(
 
     The bias is fitted together with gravity and a lever arm of its own, so that it does not
     depend on the candidate's lever arm: fitted with the candidate's, it took up the constant
-    part of a wrong lever arm's accelerations and flattened the reward along translation (GTSAM,
-    simulated hand-held, 5 cm along x: the reward's drop shrank from 0.010 to 0.0035; see
-    ``docs/backends.md``). Gravity is then fitted per candidate, with its lever arm and that bias.
+    part of a wrong lever arm's accelerations and flattened the reward along translation
+    (``docs/backends.md``). Gravity is then fitted per candidate, with its lever arm and that bias.
 
     The reference's velocity at a bound is a central difference, the mean velocity over
     ``±half_window_s``; the IMU side is smoothed alike, so that the equations hold exactly on fast
