@@ -81,3 +81,21 @@ def test_a_time_offset_reads_the_imu_at_its_own_clock(sim, offset_s):
     bg_true, ba_true = _true_biases(run, prepared)
     np.testing.assert_allclose(state.bg[0].numpy(), bg_true, atol=2e-4)
     np.testing.assert_allclose(state.ba[0].numpy(), ba_true, atol=8e-3)
+
+
+def test_implausible_biases_are_not_used(handheld_run, handheld_segment):
+    """A candidate 30° off gets biases far beyond the priors (they fit its wrong rotation, not
+    the IMU): it starts with zero biases and the mean-force gravity, as without the estimate,
+    so that the estimate does not help wrong candidates to fit."""
+    from l2calib import geometry as geo
+
+    T = torch.from_numpy(handheld_run.T_imu_lidar)[None].repeat(2, 1, 1)
+    T[1, :3, :3] = T[1, :3, :3] @ geo.so3_exp(torch.tensor([0.0, 0.5, 0.0], dtype=T.dtype))
+    seg, ref = handheld_segment
+    prepared = prepare_segment(seg, 0.5, 250, 1500, 1.0, 100.0, 0)
+    sigmas = dict(SIGMAS, bg=0.01, ba=0.1)  # the hand-held start priors
+    est = initial_states(reference_motion(prepared, ref.trajectory, [0], "estimate"), T, sigmas)
+    zero = initial_states(reference_motion(prepared, ref.trajectory, [0], "zero"), T, sigmas)
+    assert est.ba[0].abs().max() > 0.005  # the true candidate's estimate is used
+    assert not est.bg[1].any() and not est.ba[1].any()
+    assert torch.equal(est.g[1], zero.g[1])
