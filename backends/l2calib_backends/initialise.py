@@ -15,10 +15,12 @@ paired at equal stamps; on a simulated hand-held recording whose IMU lags by 50 
 little: the reward at the true extrinsic and offset rose from 0.9322 to 0.9325,
 ``benchmarks/results/experiments/time_offset_plus50.json``).
 
-With ``start_biases: estimate`` (the default) the gyro and accelerometer biases start from a
-least-squares fit over the segment and gravity is fitted with them
-(:mod:`l2calib_backends.start_bias`); with ``zero`` the biases start at zero and gravity is the
-formula above, which holds the accelerometer bias where the attitude barely changes.
+With ``start_biases: estimate`` (what ``auto`` picks on well-excited data) the gyro and
+accelerometer biases start from a least-squares fit over the segment and gravity is fitted with
+them (:mod:`l2calib_backends.start_bias`), unless they come out beyond ``PLAUSIBLE`` start-prior
+sigmas (a wrong rotation's, not the IMU's); otherwise, and with ``zero``, the biases start at
+zero and gravity is the formula above, which holds the accelerometer bias where the attitude
+barely changes.
 """
 
 from __future__ import annotations
