@@ -120,7 +120,7 @@ def reference_motion(
     seg: PreparedSegment,
     reference: Trajectory,
     start_scans: list[int],
-    start_biases: str = "estimate",
+    start_biases: str = "zero",
 ) -> ReferenceMotion:
     """Samples the reference at the start scans, the first/last scan end and the IMU samples."""
     starts = seg.end_stamps_ns[start_scans]
@@ -229,7 +229,9 @@ def initial_states(
     g = (v_b - v_a) / max(motion.span_s, 1e-3) - mean_force
     bg, ba = zeros, zeros.clone()
     if motion.start_biases == "gyro" and len(motion.bounds) > 1:
-        bg = _gyro_bias(motion, R_il, time_offset_s)
+        bg_e = _gyro_bias(motion, R_il, time_offset_s)
+        fits = bg_e.norm(dim=-1) <= PLAUSIBLE * sigmas["bg"]  # as below
+        bg = torch.where(fits[:, None], bg_e, bg)
     if motion.start_biases == "estimate" and len(motion.bounds) > 1:
         force_world = torch.einsum("sij,ksj->ksi", motion.R_imu, a_lidar)
         bg_e, ba_e, g_e = _start_biases(motion, force_world, R_il, t_li, time_offset_s)

@@ -41,7 +41,8 @@ def chunk_bounds(t: Tensor, chunk_s: float | None = None, margin_s: float = 0.0)
     central difference must lie inside the samples).
     """
     chunk_s = CHUNK_S if chunk_s is None else chunk_s
-    first = int(torch.searchsorted(t, t[0] + margin_s))
+    last_index = len(t) - 1
+    first = min(int(torch.searchsorted(t, t[0] + margin_s)), last_index)
     last = int(torch.searchsorted(t, t[-1] - margin_s, right=True)) - 1
     if last <= first:
         return torch.tensor([first], dtype=torch.long)
@@ -131,13 +132,24 @@ def accel_bias_and_gravity(
     # taken as the start of its interval was off by ½ ḟ Δt per sample, up to 20 mm/s per chunk
     # on hand-held motion.
     dt = 0.5 * (torch.diff(t, append=t[-1:]) + torch.diff(t, prepend=t[:1]))
-    a, b, h = t[bounds[:-1]][:, None], t[bounds[1:]][:, None], half_window_s
-    rise = ((t[None] - (a - h)) / (2 * h)).clamp(0, 1)
-    fall = (((b + h) - t[None]) / (2 * h)).clamp(0, 1)
-    weight = rise * fall * dt[None]  # [C, S]
-    S_c = torch.einsum("cs,ksi->kci", weight, force_world)
-    M = torch.einsum("cs,sij->cij", weight, R_wl)[None] @ R_li[:, None]  # [K, C, 3, 3]
-    span = (b - a)[:, 0]
+    h = half_window_s
+    a, b = t[bounds[:-1]], t[bounds[1:]]
+    # Banded: chunk c weighs only the samples in [a_c - h, b_c + h] (memory O(K·S), not O(C·S)).
+    lo = torch.searchsorted(t, a - h)
+    width = int((torch.searchsorted(t, b + h, right=True) - lo).max())
+    idx = (lo[:, None] + torch.arange(width)).clamp(max=len(t) - 1)  # [C, W]
+    ts = t[idx]
+    # The difference of two ±h window means integrates over [a + u, b + u] for u in [-h, h]:
+    # a sample at s counts for the share of u with a + u <= s < b + u (exact for any b - a).
+    share = (
+        torch.minimum(ts - a[:, None], torch.full_like(ts, h))
+        - torch.maximum(ts - b[:, None], torch.full_like(ts, -h))
+    ).clamp(min=0) / (2 * h)
+    inside = (lo[:, None] + torch.arange(width)) < len(t)
+    weight = torch.where(inside, share, torch.zeros((), dtype=dtype)) * dt[idx]  # [C, W]
+    S_c = torch.einsum("cw,kcwi->kci", weight, force_world[:, idx])
+    M = torch.einsum("cw,cwij->cij", weight, R_wl[idx])[None] @ R_li[:, None]  # [K, C, 3, 3]
+    span = b - a
     C = len(span)
     eye = torch.eye(3, dtype=dtype).expand(K, C, 3, 3)
     arm = (dR_B[1:] - dR_B[:-1]).expand(K, C, 3, 3)

@@ -36,6 +36,8 @@ def test_chunks_cover_the_samples_inside_the_margins():
     assert bounds[0] == 0 and bounds[-1] == len(t) - 1 and len(bounds) == 9
     inner = chunk_bounds(t, 0.5, margin_s=0.05)
     assert t[inner[0]] >= 0.05 and t[inner[-1]] <= t[-1] - 0.05 and len(inner) == 9
+    short = torch.arange(0, 0.02, 0.005, dtype=torch.float64)  # shorter than the margins
+    assert chunk_bounds(short, 0.5, margin_s=0.05).tolist() == [len(short) - 1]  # no chunk
 
 
 def test_estimated_start_biases_match_the_simulated_ones(handheld_run, handheld_segment):
