@@ -50,7 +50,7 @@ def test_too_little_or_too_still_data_is_not_calibrated():
 
 def test_weak_but_real_motion_is_trained_on():
     # The simulated UAV flights: every axis under the selection's thresholds, yet they
-    # calibrate to 1.6-2.8 cm (benchmarks/results/calibration.json, "uav all"). Stopping them
+    # calibrate to 2.9-3.2 cm (benchmarks/results/calibration.json, "uav all"). Stopping them
     # would refuse the weakly excited data l2calib is for.
     uav = _data(20.0, gyro=(0.04, 0.02, 0.15), accel=(0.12, 0.26, 0.03))
     assert before_training(uav, CFG).status == "calibrated"
