@@ -175,14 +175,33 @@ def _shifted(motion: ReferenceMotion, values: Tensor, time_offset_s: Tensor) -> 
 
 
 def _gyro_bias(motion: ReferenceMotion, R_il: Tensor, time_offset_s: Tensor | None) -> Tensor:
-    """``[K, 3]`` gyro biases (rad/s) of the candidates (:func:`start_bias.gyro_bias`)."""
-    K = R_il.shape[0]
-    if time_offset_s is None or not bool(time_offset_s.any()):
-        inside = (motion.all_t >= motion.imu_t[0]) & (motion.all_t <= motion.imu_t[-1])
-        gyro = motion.all_gyro[inside].expand(K, -1, -1)
-    else:
-        gyro = _shifted(motion, motion.all_gyro, time_offset_s.to(motion.all_t.dtype))
-    return start_bias.gyro_bias(gyro, motion.imu_t, motion.bounds, motion.R_B, R_il)
+    """``[K, 3]`` gyro biases (rad/s) of the candidates (:func:`start_bias.gyro_bias`).
+
+    The gyro is integrated once over chunks of its own clock; a candidate's time offset moves
+    the reference's chunk ends instead (the IMU's ``[t_a, t_b]`` is the LiDAR's
+    ``[t_a − offset, t_b − offset]``), which keeps the integration out of the per-candidate work.
+    """
+    inside = (motion.all_t >= motion.imu_t[0]) & (motion.all_t <= motion.imu_t[-1])
+    gyro = motion.all_gyro[inside][None]
+    R_B = motion.R_B
+    if time_offset_s is not None and bool(time_offset_s.any()):
+        R_B = _orientation_at(motion, motion.imu_t[motion.bounds][None] - time_offset_s[:, None])
+    return start_bias.gyro_bias(gyro, motion.imu_t, motion.bounds, R_B, R_il)
+
+
+def _orientation_at(motion: ReferenceMotion, t: Tensor) -> Tensor:
+    """Reference LiDAR orientation ``[..., 3, 3]`` at LiDAR-clock times ``t`` (s).
+
+    Interpolated on SO(3) between the orientations ``R_imu`` at the IMU samples; ``t`` is
+    clamped to their span.
+    """
+    ts = motion.imu_t
+    q = t.clamp(ts[0], ts[-1])
+    hi = torch.searchsorted(ts, q.contiguous(), right=True).clamp(1, len(ts) - 1)
+    lo = hi - 1
+    w = ((q - ts[lo]) / (ts[hi] - ts[lo]).clamp_min(1e-9))[..., None]
+    R_lo = motion.R_imu[lo]
+    return R_lo @ geo.so3_exp(w * geo.so3_log(R_lo.transpose(-1, -2) @ motion.R_imu[hi]))
 
 
 def _start_biases(

@@ -62,30 +62,36 @@ def gyro_bias(gyro: Tensor, t: Tensor, bounds: Tensor, R_wl: Tensor, R_il: Tenso
     motion, where the reference's numerically differentiated rate is off by ~1e-3 rad/s.
 
     Args:
-        gyro: ``[K, S, 3]`` gyro readings (rad/s, IMU frame) at the LiDAR-clock instants ``t``.
+        gyro: ``[1, S, 3]`` gyro readings (rad/s, IMU frame) at times ``t``, the same for
+            every candidate (or ``[K, S, 3]``, one set per candidate).
         t: ``[S]`` their times (s).
         bounds: ``[C + 1]`` chunk bounds (:func:`chunk_bounds`).
-        R_wl: ``[C + 1, 3, 3]`` reference LiDAR orientation at the bounds.
+        R_wl: ``[C + 1, 3, 3]`` reference LiDAR orientation at the bounds, or
+            ``[K, C + 1, 3, 3]`` per candidate (a time offset moves the bounds on the LiDAR clock).
         R_il: ``[K, 3, 3]`` candidate rotations ``R_imu_lidar``.
     """
-    K, dtype = gyro.shape[0], gyro.dtype
+    dtype = gyro.dtype
     lengths = bounds[1:] - bounds[:-1]
-    C = len(lengths)
-    dR = torch.eye(3, dtype=dtype).repeat(K, C, 1, 1)
-    J = torch.zeros(K, C, 3, 3, dtype=dtype)
-    eye = torch.eye(3, dtype=dtype)
-    for j in range(int(lengths.max())):
-        live = j < lengths  # [C]
-        idx = (bounds[:-1] + j).clamp(max=len(t) - 2)
-        step = torch.where(live, t[idx + 1] - t[idx], torch.zeros((), dtype=dtype))
-        rate = 0.5 * (gyro[:, idx] + gyro[:, idx + 1])  # [K, C, 3]
-        inc = geo.so3_exp(rate * step[None, :, None])
-        dR = dR @ inc
-        J = inc.transpose(-1, -2) @ J + step[None, :, None, None] * eye
-    rel = R_wl[:-1].transpose(-1, -2) @ R_wl[1:]  # [C, 3, 3], LiDAR frame
-    ref = R_il[:, None] @ rel[None] @ R_il[:, None].transpose(-1, -2)
+    # All increments at once, then pairwise products (log2 of the chunk length rounds instead
+    # of one Python step per sample): chunks A then B give dR = dR_A dR_B, J = dR_Bᵀ J_A + J_B.
+    j = torch.arange(int(lengths.max()))
+    idx = (bounds[:-1, None] + j).clamp(max=len(t) - 2)  # [C, L]
+    step = torch.where(j < lengths[:, None], t[idx + 1] - t[idx], torch.zeros((), dtype=dtype))
+    dR = geo.so3_exp(0.5 * (gyro[:, idx] + gyro[:, idx + 1]) * step[..., None])  # [K', C, L, 3, 3]
+    J = step[..., None, None] * torch.eye(3, dtype=dtype)  # [C, L, 3, 3]
+    J = J.expand_as(dR)
+    while dR.shape[2] > 1:
+        if dR.shape[2] % 2:  # pad with an empty sample
+            dR = torch.cat([dR, torch.eye(3, dtype=dtype).expand_as(dR[:, :, :1])], dim=2)
+            J = torch.cat([J, torch.zeros_like(J[:, :, :1])], dim=2)
+        a, b = dR[:, :, 0::2], dR[:, :, 1::2]
+        J = b.transpose(-1, -2) @ J[:, :, 0::2] + J[:, :, 1::2]
+        dR = a @ b
+    dR, J = dR[:, :, 0], J[:, :, 0]  # [K', C, 3, 3]
+    rel = R_wl[..., :-1, :, :].transpose(-1, -2) @ R_wl[..., 1:, :, :]  # [(K,) C, 3, 3]
+    ref = R_il[:, None] @ rel @ R_il[:, None].transpose(-1, -2)
     r = geo.so3_log(dR.transpose(-1, -2) @ ref)  # [K, C, 3] = -J b
-    N = (J.transpose(-1, -2) @ J).sum(dim=1)
+    N = (J.transpose(-1, -2) @ J).sum(dim=1).expand(len(R_il), 3, 3)
     rhs = -(J.transpose(-1, -2) @ r[..., None]).sum(dim=1)[..., 0]
     return torch.linalg.solve(N, rhs)
 
