@@ -357,23 +357,38 @@ def _summary(rows: list[dict[str, Any]], failed: list[dict[str, Any]]) -> str:
 #: ``backend.options.start_biases: auto`` landed then: before it the filters started with zero
 #: IMU biases everywhere; ``auto`` now estimates them on well-excited (hand-held) data.
 START_BIASES_AUTO = "2026-12-04 15:20"
+#: The gyro bias's integration changed then (same method, other rounding: other PPO paths).
+START_BIASES_FAST = "2026-12-04 17:05"
 
 
 def _before_start_biases(rows: list[dict[str, Any]]) -> str:
-    """A note naming the hand-held rows measured before :data:`START_BIASES_AUTO`."""
-    old = sorted(
-        f"{r['case']} (seed {r['train_seed']})"
-        for r in rows
-        if r["case"].startswith("handheld")
-        and r.get("machine", {}).get("date", "") < START_BIASES_AUTO
-    )
-    if not old:
-        return ""
-    return (
-        f"\nMeasured before `backend.options.start_biases: auto` ({START_BIASES_AUTO}; the filters "
-        "started with zero IMU biases, which `auto` now estimates on hand-held data; uav and ugv "
-        f"rows are unaffected): {', '.join(old)}.\n"
-    )
+    """A note naming the hand-held rows measured before the current start-bias code."""
+
+    def named(lo: str, hi: str) -> str:
+        return ", ".join(
+            sorted(
+                f"{r['case']} (seed {r['train_seed']})"
+                for r in rows
+                if r["case"].startswith("handheld")
+                and lo <= r.get("machine", {}).get("date", "") < hi
+            )
+        )
+
+    zero, earlier = named("", START_BIASES_AUTO), named(START_BIASES_AUTO, START_BIASES_FAST)
+    md = ""
+    if zero:
+        md += (
+            f"\nMeasured before `backend.options.start_biases: auto` ({START_BIASES_AUTO}; the "
+            "filters started with zero IMU biases, which `auto` now estimates on hand-held data; "
+            f"uav and ugv rows are unaffected): {zero}.\n"
+        )
+    if earlier:
+        md += (
+            f"\nMeasured with the start biases estimated by the code before {START_BIASES_FAST} "
+            "(the same method, the gyro integrated per candidate: the same estimate up to "
+            f"rounding, which sends PPO along another path): {earlier}.\n"
+        )
+    return md
 
 
 def _render(results: dict[str, Any]) -> str:
