@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 import os
 import tempfile
 import time
@@ -99,6 +100,10 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
             "simulator_version": SIMULATOR_VERSION,
         }  # fmt: skip
         t0 = time.perf_counter()
+        rollbacks = _Count("found lost; scans")  # ct-lidar's roll-backs (it logs each)
+        ct_log = logging.getLogger("l2calib.references.ct_odometry")
+        ct_log.setLevel(logging.INFO)  # INFO records reach the handler (no other handler prints)
+        ct_log.addHandler(rollbacks)
         try:
             ref = plugin.compute([seq.segment()])[0]
         except L2CalibError as exc:  # ct-lidar: ReferenceLostTrackError names time and scan
@@ -112,7 +117,9 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
                 ape_rot_rmse_deg=round(float(np.degrees(np.sqrt(np.mean(res.e_r**2)))), 4),
             )
         seconds = time.perf_counter() - t0
+        ct_log.removeHandler(rollbacks)
         row.update(
+            rollbacks=rollbacks.n,
             seconds=round(seconds, 1),
             s_per_scan=round(seconds / max(len(seq.scans.stamps_ns), 1), 3),
             load=[round(x, 2) for x in os.getloadavg()],
@@ -122,6 +129,17 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
         print(f"{lidar} {profile} {world} seed {seed} | {source}: {summary(row)}", flush=True)
         rows.append(row)
     return rows
+
+
+class _Count(logging.Handler):
+    """Counts the log records whose message contains ``text``."""
+
+    def __init__(self, text: str) -> None:
+        super().__init__(logging.INFO)
+        self.text, self.n = text, 0
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.n += self.text in record.getMessage()
 
 
 def met(row: dict[str, Any]) -> bool:
@@ -185,10 +203,11 @@ def render(results: dict[str, Any]) -> str:
         "",
         "`engine`: the source's engine version; `9 (= 8)`: run with engine 8, whose results "
         "engine 9 reproduces bit for bit where engine 8 did not lose track (engine 9 only adds "
-        "a roll-back where engine 8 raised; docs/references.md).\n",
+        "a roll-back where engine 8 raised; docs/references.md). `roll-backs`: how often "
+        "ct-lidar undid scans found lost and solved them again (engine ≥ 10 rows).\n",
         "| LiDAR | profile | world | seed | s | source | engine | APE RMSE cm | max cm | s/scan "
-        "| met |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| roll-backs | met |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
         ape = "LOST" if r["lost"] else f"{r['ape_rmse_cm']:.2f}"
@@ -196,6 +215,7 @@ def render(results: dict[str, Any]) -> str:
         out.append(
             f"| {r['lidar']} | {r['profile']} | {r['world']} | {r['seed']} | {r['duration_s']:g} "
             f"| {r['source']} | {_engine(r)} | {ape} | {mx} | {r['s_per_scan']:.3f} | "
+            f"{r.get('rollbacks', '-') if r['source'] == 'ct-lidar' else '-'} | "
             f"{'yes' if r['met'] else 'no'} |"
         )
     return "\n".join(out) + "\n"

@@ -11,7 +11,10 @@ data. Each variant changes one thing:
   random walk and turn-on bias), ``no-turn-on`` (turn-on biases zero), ``white-only`` (no
   biases at all), ``no-white`` (biases only), ``off`` (exact readings);
 * ``start=`` the backend's ``start_biases`` option: ``zero`` (filters start with zero biases,
-  the behaviour before 2026-12-04), ``gyro``, ``estimate`` (the default).
+  the behaviour before 2026-12-04), ``gyro``, ``estimate`` (the default);
+* ``budget=S``: ``selection.budget_s`` (seconds of data selected);
+* ``skip=S``: each segment's first ``S`` seconds are left out of the alignment and the reward
+  (the filter still runs through them: its biases settle there).
 
 Results: ``benchmarks/results/experiments/start_bias.json`` (rows are added to those already
 there; a row with the same case and variant is replaced).
@@ -70,11 +73,16 @@ def run_variant(name: str, variant: str) -> dict[str, Any]:
     else:
         imu_model.IMUS[model] = dataclasses.replace(saved, **change)
     overrides = [*base.overrides, f"backend.options.start_biases={spec.get('start', 'estimate')}"]
+    if "budget" in spec:
+        overrides.append(f"selection.budget_s={spec['budget']}")
     case = dataclasses.replace(base, overrides=overrides, sim=sim)
     try:
         env, runs, data, recipe = exact_reference_env(case)
     finally:
         imu_model.IMUS[model] = saved
+    skip_s = float(spec.get("skip", 0))
+    if skip_s > 0:
+        _skip_first(env, skip_s)
     T_gt = torch.from_numpy(runs[0].T_imu_lidar)
     cfg = recipe.train
 
@@ -98,6 +106,18 @@ def run_variant(name: str, variant: str) -> dict[str, Any]:
         "evaluations": res.evaluations,
         "machine": machine_info(),
     }
+
+
+def _skip_first(env, skip_s: float) -> None:
+    """Leaves each segment's first ``skip_s`` seconds out of the alignment and the reward."""
+    reference_at = env._reference_at
+
+    def later_only(i, segment, stamps_ns):
+        T_ref, ok = reference_at(i, segment, stamps_ns)
+        t = torch.as_tensor((stamps_ns - stamps_ns[0]) * 1e-9)
+        return T_ref, ok & (t >= skip_s)
+
+    env._reference_at = later_only
 
 
 def main() -> None:

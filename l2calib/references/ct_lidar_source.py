@@ -37,7 +37,7 @@ from l2calib.trajectory import Trajectory
 log = logging.getLogger("l2calib.references")
 
 NAME = "ct-lidar"
-ENGINE_VERSION = "9"  # bump when the odometry's results change, to invalidate cached references
+ENGINE_VERSION = "10"  # bump when the odometry's results change, to invalidate cached references
 
 
 def cold_starts(warmup: list[LidarScan], first_ns: int, options) -> list[int]:  # noqa: ANN001

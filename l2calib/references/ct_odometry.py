@@ -31,6 +31,7 @@ maintained Python package offers per-scan continuous-time registration.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -45,6 +46,8 @@ from l2calib.references.ct_motion import ScanMotion, prior_residual, right_jacob
 from l2calib.references.ct_normals import line_normals
 from l2calib.references.ct_tracking import TrackingChecks
 from l2calib.references.options import CtLidarOptions
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian"]
 
@@ -117,9 +120,16 @@ class CtLidarOdometry(TrackingChecks):
             o.plane_cell_m,
         )
 
-    def _prepare(self, scan: LidarScan, density: float = 1.0) -> _Scan:
-        """The scan's registration and map samples (``density`` times denser registration)."""
+    def _prepare(
+        self, scan: LidarScan, density: float = 1.0, rng: np.random.Generator | None = None
+    ) -> _Scan:
+        """The scan's registration and map samples (``density`` times denser registration).
+
+        ``rng`` draws the samples; by default the run's own generator, which draws every scan's
+        samples in turn (so a scan's sample depends on the scans prepared before it).
+        """
         o = self.o
+        rng = self.rng if rng is None else rng
         p = np.asarray(scan.points_lidar, np.float64)
         tau = np.asarray(scan.offset_s, np.float64)
         ring = scan.ring if o.line_match_m > 0 else None
@@ -134,10 +144,10 @@ class CtLidarOdometry(TrackingChecks):
             keep = near[:, 1] <= np.maximum(o.isolated_ratio * r, o.isolated_min_m)
             p, tau = p[keep], tau[keep]
             ring = None if ring is None else ring[keep]
-        reg = voxel_subsample(p, o.scan_voxel_m / density ** (1 / 3), self.rng)
+        reg = voxel_subsample(p, o.scan_voxel_m / density ** (1 / 3), rng)
         if len(reg) > o.max_points * density:
-            reg = np.sort(self.rng.choice(reg, int(o.max_points * density), replace=False))
-        mp = voxel_subsample(p, o.map_voxel_m, self.rng)
+            reg = np.sort(rng.choice(reg, int(o.max_points * density), replace=False))
+        mp = voxel_subsample(p, o.map_voxel_m, rng)
         normal = None if ring is None else line_normals(p, ring, reg)
         line = None if ring is None else ring[mp]
         return _Scan(p[reg], tau[reg], p[mp], tau[mp], normal=normal, map_line=line)
@@ -357,7 +367,12 @@ class CtLidarOdometry(TrackingChecks):
         Where a scan is found lost (but for an unverifiable scene, which a second solve cannot
         change), the last ``rollback_scans`` scans are undone, map points included
         (:meth:`_state`, :meth:`_restore`), and solved again with a ``rollback_density`` times
-        denser sample; at most once per run, and ``scans`` (the raw scans) are needed for it.
+        denser sample; at most ``rollback_max`` times per run, each time with a fresh sample,
+        and ``scans`` (the raw scans) are needed for it. A roll-back's sample of scan ``i`` is
+        drawn by a generator seeded with ``(seed, i, roll-back number)``, so it does not depend
+        on how many scans were prepared before (with the run's one generator a stretch that
+        tracked on a 21 s run was lost on a 40 s run of the same recording), and the first pass
+        (``prepared``) is untouched by it.
         """
         self.map = self._new_map()
         self._insert(prepared[0], start)
@@ -382,13 +397,20 @@ class CtLidarOdometry(TrackingChecks):
                 self._check_tracking(k, stamps, m)
             except ReferenceLostTrackError:
                 j = max(1, k - self.o.rollback_scans)
-                if dense or scans is None or self.o.rollback_scans == 0 or self.unseen:
+                o = self.o
+                if scans is None or self.rollbacks >= o.rollback_max or self.unseen:
                     raise
-                density = self.o.rollback_density
-                dense = {i: self._prepare(scans[i], density) for i in range(j, k + 1)}
+                if o.rollback_scans == 0 or saved[j - 1] is None:
+                    raise
+                attempt = self.rollbacks + 1
+                for i in range(j, k + 1):
+                    rng = np.random.default_rng([o.seed, i, attempt])
+                    dense[i] = self._prepare(scans[i], o.rollback_density, rng)
                 P = self._restore(saved[j - 1])
                 del motions[j:], ratios[j - 1 :], saved[j:]
                 self.rollbacks += 1
+                log.info("ct-lidar: scan %d found lost; scans %d-%d solved again (roll-back %d "
+                         "of at most %d)", k, j, k, attempt, o.rollback_max)  # fmt: skip
                 self.lost_at_s = None
                 k = j
                 continue

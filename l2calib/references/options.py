@@ -195,14 +195,17 @@ class CtLidarOptions(CacheOptions):
         4.0, ge=1, description="... the body rate's and α's process noise times this (1: off)"
     )
     rollback_scans: int = Field(
-        6,
+        12,
         ge=0,
         description="where a scan is found lost (a poor fit or a drift, not an unverifiable "
-        "scene), this many scans are undone, map points included, and solved again once with "
-        "a denser sample, at most once per run (0: off)",
+        "scene), this many scans are undone, map points included, and solved again with "
+        "a denser, freshly drawn sample (0: off)",
     )
     rollback_density: float = Field(
         2.0, ge=1, description="... that sample is this many times denser"
+    )
+    rollback_max: int = Field(
+        3, ge=0, description="... at most this many roll-backs per run (0: off)"
     )
     initial_rate_rad_s: float = Field(
         3.0, gt=0, description="prior σ of the first scan's motion: body rate (rad/s)"

@@ -28,7 +28,7 @@ def test_a_scan_found_lost_once_is_solved_again_and_the_run_goes_on(swing, monke
         return real(self, k, stamps, m)
 
     monkeypatch.setattr(TrackingChecks, "_check_tracking", once)
-    odo = CtLidarOdometry(CtLidarOptions(max_range_m=100.0))
+    odo = CtLidarOdometry(CtLidarOptions(max_range_m=100.0, rollback_scans=6))
     scans = swing.segment.scans
     stamps, motions = odo.run(scans)
     assert odo.rollbacks == 1 and len(motions) == len(scans)
@@ -38,12 +38,48 @@ def test_a_scan_found_lost_once_is_solved_again_and_the_run_goes_on(swing, monke
     assert np.all(np.isfinite([m.t_b for m in motions]))
 
 
-def test_scans_no_odometry_can_follow_still_raise_after_one_roll_back(lost):
-    """The roll-back is tried once; scattered scans stay lost and the error reaches the user."""
-    odo = CtLidarOdometry(CtLidarOptions())
+def test_scans_no_odometry_can_follow_still_raise_after_the_roll_backs(lost):
+    """The roll-back is tried ``rollback_max`` times; scattered scans stay lost and say so."""
+    odo = CtLidarOdometry(CtLidarOptions(rollback_max=2))
     with pytest.raises(ReferenceLostTrackError, match="lost track"):
         odo.run(lost.scans)
-    assert odo.rollbacks == 1
+    assert odo.rollbacks == 2
+
+
+def test_each_roll_back_draws_a_fresh_sample_independent_of_the_scans_before(swing, monkeypatch):
+    """Two fake losses at scan 12: two roll-backs, each with its own sample of scan 12; the
+    samples are the same whatever the run's own generator drew before (seeded per scan)."""
+    real = TrackingChecks._check_tracking
+    real_prepare = CtLidarOdometry._prepare
+
+    def run(skip_draws: int) -> list[np.ndarray]:
+        seen, drawn = [], []
+
+        def twice(self, k, stamps, m):
+            seen.append(k)
+            if k == 12 and seen.count(12) <= 2:
+                self.unseen = False
+                raise ReferenceLostTrackError("fake loss")
+            return real(self, k, stamps, m)
+
+        def prepare(self, scan, density=1.0, rng=None):
+            s = real_prepare(self, scan, density, rng)
+            if rng is not None and scan is swing.segment.scans[12]:
+                drawn.append(s.points)
+            return s
+
+        monkeypatch.setattr(TrackingChecks, "_check_tracking", twice)
+        monkeypatch.setattr(CtLidarOdometry, "_prepare", prepare)
+        odo = CtLidarOdometry(CtLidarOptions(max_range_m=100.0, rollback_scans=6))
+        odo.rng.random(skip_draws)  # another history of the run's own generator
+        _, motions = odo.run(swing.segment.scans)
+        assert odo.rollbacks == 2 and len(motions) == len(swing.segment.scans)
+        return drawn
+
+    a, b = run(0), run(5)
+    assert len(a) == len(b) == 2
+    assert not np.array_equal(a[0], a[1])  # a fresh sample each time
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
 
 
 def test_without_roll_back_the_same_scans_raise_at_once(lost):
