@@ -114,7 +114,11 @@ def propagate(
         a_t = t0 if j == 0 else torch.minimum(torch.maximum(ts[i], t0), t1)
         # The last interval of each filter ends at t1 even if the IMU stops just before it.
         b_t = torch.where(i + 1 >= hi, t1, torch.minimum(torch.maximum(ts[i + 1], t0), t1))
-        dt = (b_t - a_t).clamp_min(0.0)  # [B]; 0 once a filter has reached t1
+        # [B]; 0 once a filter has reached t1, and once it has used its own last interval: a
+        # window ending past the last IMU sample (a positive time offset at a segment's end)
+        # has i clamped there with a_t < t1, which integrated that stretch again on every
+        # extra step other filters of the batch still took (a 50 ms offset: 649 ms, not 100).
+        dt = torch.where(lo + j < hi, (b_t - a_t).clamp_min(0.0), torch.zeros((), dtype=dtype))
         w_m = 0.5 * (imu.gyro[i] + imu.gyro[i + 1]) - state.bg  # [B, 3]
         a_m = 0.5 * (imu.accel[i] + imu.accel[i + 1]) - state.ba
         dt1 = dt[:, None]

@@ -57,6 +57,27 @@ def test_propagation_matches_noise_free_imu_integration(sim):
     assert torch.allclose(p_end[0, 0], out.p[0], atol=1e-9)
 
 
+def test_a_window_past_the_last_imu_sample_integrates_its_own_length_once():
+    """Two filters in one batch, the second ending 55 ms past the IMU (a positive time offset
+    at a segment's end): its rotation is the constant rate times its own 0.1 s, not the
+    extrapolated stretch again for every step the first filter still takes."""
+    t = torch.arange(200, dtype=torch.float64) * 0.005  # 0 ... 0.995 s
+    gyro = torch.tensor([0.0, 0.0, 1.0], dtype=torch.float64).repeat(200, 1)
+    accel = torch.tensor([0.0, 0.0, 9.81], dtype=torch.float64).repeat(200, 1)
+    state = FilterState(
+        R=torch.eye(3).repeat(2, 1, 1).double(), p=torch.zeros(2, 3).double(),
+        v=torch.zeros(2, 3).double(), bg=torch.zeros(2, 3).double(),
+        ba=torch.zeros(2, 3).double(), g=torch.tensor([[0.0, 0.0, -9.81]]).repeat(2, 1).double(),
+        P=torch.eye(DIM).repeat(2, 1, 1).double() * 1e-4,
+    )  # fmt: skip
+    t0 = torch.tensor([0.0, 0.95], dtype=torch.float64)
+    t1 = torch.tensor([0.9, 1.05], dtype=torch.float64)
+    out, _ = propagate(state, ImuTensors(t, gyro, accel), t0, t1, ImuNoise(1e-3, 1e-2, 1e-5, 1e-4))
+    yaw = geo.so3_log(out.R)[:, 2]
+    assert torch.allclose(yaw, torch.tensor([0.9, 0.1], dtype=torch.float64), atol=1e-9)
+    assert torch.allclose(out.p, torch.zeros(2, 3, dtype=torch.float64), atol=1e-9)
+
+
 #: Own-map IEKF on the simulator's Ouster beam azimuth offsets (simulator v2): 10 cm APE RMSE
 #: with the true extrinsic (1-3 cm without the offsets), and 2° rotations score above the truth.
 #: Strict: the test fails once the mode is fixed, so the marker is removed then.
