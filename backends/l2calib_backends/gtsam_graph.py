@@ -82,7 +82,10 @@ def imu_intervals(imu: ImuTensors, t0: Tensor, t1: Tensor) -> tuple[Tensor, Tens
     a_t[:, 0] = t0
     b_t = torch.minimum(torch.maximum(ts[i + 1], t0[:, None]), t1[:, None])
     b_t = torch.where(i + 1 >= hi[:, None], t1[:, None], b_t)  # last interval ends at t1
-    dt = (b_t - a_t).clamp_min(0.0)
+    # 0 past a filter's own last interval (as propagate: a window ending past the last IMU
+    # sample would otherwise repeat the extrapolated stretch on every extra step).
+    own = lo[:, None] + torch.arange(steps) < hi[:, None]
+    dt = torch.where(own, (b_t - a_t).clamp_min(0.0), torch.zeros((), dtype=t0.dtype))
     gyro = 0.5 * (imu.gyro[i] + imu.gyro[i + 1])
     # GTSAM rotates an interval's specific force by the attitude at its start; the trapezoid of
     # the two samples, each in its own frame (as the IEKF's propagation does), removes the

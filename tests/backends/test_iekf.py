@@ -76,6 +76,10 @@ def test_a_window_past_the_last_imu_sample_integrates_its_own_length_once():
     yaw = geo.so3_log(out.R)[:, 2]
     assert torch.allclose(yaw, torch.tensor([0.9, 0.1], dtype=torch.float64), atol=1e-9)
     assert torch.allclose(out.p, torch.zeros(2, 3, dtype=torch.float64), atol=1e-9)
+    from l2calib_backends.gtsam_graph import imu_intervals  # the GTSAM backend's intervals
+
+    _, _, dt = imu_intervals(ImuTensors(t, gyro, accel), t0, t1)
+    assert torch.allclose(dt.sum(1), t1 - t0, atol=1e-12)
 
 
 #: Own-map IEKF on the simulator's Ouster beam azimuth offsets (simulator v2): 10 cm APE RMSE
