@@ -365,6 +365,9 @@ def _summary(rows: list[dict[str, Any]], failed: list[dict[str, Any]]) -> str:
 START_BIASES_AUTO = "2026-12-04 15:20"
 #: The gyro bias's integration changed then (same method, other rounding: other PPO paths).
 START_BIASES_FAST = "2026-12-04 17:05"
+#: The IEKF / GTSAM propagation stopped re-integrating the stretch past a segment's last IMU
+#: sample then (candidates with a positive time offset were penalised at each segment's end).
+END_OF_IMU_FIX = "2026-12-04 18:55"
 
 
 def _before_start_biases(rows: list[dict[str, Any]]) -> str:
@@ -381,7 +384,16 @@ def _before_start_biases(rows: list[dict[str, Any]]) -> str:
         )
 
     zero, earlier = named("", START_BIASES_AUTO), named(START_BIASES_AUTO, START_BIASES_FAST)
+    before_fix = sum(r.get("machine", {}).get("date", "") < END_OF_IMU_FIX for r in rows)
     md = ""
+    if before_fix:
+        md += (
+            f"\n{before_fix} of {len(rows)} rows were measured before {END_OF_IMU_FIX}, when a "
+            "filter window ending past a segment's last IMU sample integrated that stretch "
+            "again on every extra step of the batch: candidates with a positive time offset "
+            "(estimated by default) were penalised at each segment's last scan "
+            "(docs/time_offset.md). Rows after it carry a later date.\n"
+        )
     if zero:
         md += (
             f"\nMeasured before `backend.options.start_biases: auto` ({START_BIASES_AUTO}; the "

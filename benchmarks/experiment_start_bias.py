@@ -16,6 +16,12 @@ data. Each variant changes one thing:
 * ``skip=S``: each segment's first ``S`` seconds are left out of the alignment and the reward
   (the filter still runs through them: its biases settle there).
 
+What it showed (2026-12-04): uav seq 1 moves 2.61 cm with the VN100 as modelled and zero start
+biases, 0.39 cm without turn-on biases; leaving the first 3 / 6 s out of the reward 1.62 /
+1.73 cm (uav all: 4.09 cm, worse); **uav all with 60 s of data (the UAV recipe's budget) instead
+of 20 s: 0.70 cm / 0.133 deg** (2.85 cm / 0.227 deg with 20 s) — the peak's offset is a matter
+of how much flight the reward sees, measured before the end-of-IMU fix (docs/time_offset.md).
+
 Results: ``benchmarks/results/experiments/start_bias.json`` (rows are added to those already
 there; a row with the same case and variant is replaced).
 """

@@ -84,63 +84,7 @@ def _axes(v: np.ndarray) -> list[float]:
     )
 
 
-#: Settings a user guesses (datasheet noise, the start-bias model): the cost's minimum is
-#: recomputed under each; how far it moves is the answer's dependence on them.
-NUISANCES = {
-    "imu noise x2": ("gyro_noise_density", "accel_noise_density", 2.0),
-    "imu noise /2": ("gyro_noise_density", "accel_noise_density", 0.5),
-    "bias walk x4": ("gyro_bias_random_walk", "accel_bias_random_walk", 4.0),
-    "start biases zero": "backend.options.start_biases=zero",
-    "start biases estimate": "backend.options.start_biases=estimate",
-}
-
-
-def nuisance_envs(case: str) -> dict[str, Any]:
-    """One scoring env per :data:`NUISANCES` entry (the case's data, one setting changed)."""
-    import dataclasses
-
-    import yaml
-
-    from benchmarks.bench_calibration import cases, exact_reference_env
-
-    base = next(c for c in cases(quick=False) if c.name == case)
-    recipe_path = Path(__file__).parents[1] / "l2calib" / "recipes" / f"{base.recipe}.yaml"
-    imu = yaml.safe_load(recipe_path.read_text())["data"]["imu"]
-    for o in base.overrides:  # the case's own values where it sets them
-        key, _, value = o.partition("=")
-        if key.startswith("data.imu."):
-            imu[key.removeprefix("data.imu.")] = float(value)
-    envs = {}
-    for name, change in NUISANCES.items():
-        if isinstance(change, str):
-            extra = [change]
-        else:
-            a, b, f = change
-            extra = [f"data.imu.{a}={imu[a] * f:.4g}", f"data.imu.{b}={imu[b] * f:.4g}"]
-        alt = dataclasses.replace(base, overrides=[*base.overrides, *extra])
-        envs[name] = exact_reference_env(alt)[0]
-    return envs
-
-
-def model_shift(envs, T, offset, H: np.ndarray, newton: np.ndarray, block_s: float):
-    """Per nuisance, how far the cost's minimum moves from ``newton`` (``{name: [7]}``)."""
-    from l2calib.assess.polish import STEPS, stencil
-    from l2calib.assess.polish import moved as perturbed
-
-    d = stencil(7)[: 1 + 2 * 7]  # the centre and ± each axis: gradients only
-    h = np.array(STEPS)
-    Hi = np.linalg.pinv(H)
-    out = {}
-    for name, env in envs.items():
-        C = block_costs(env, perturbed(T, d), torch.as_tensor(offset + d[:, 6]), block_s).sum(1)
-        g = (C[1::2] - C[2::2]) / (2 * h)
-        out[name] = -Hi @ g - newton
-    return out
-
-
-def run_case(
-    case: str, rows: list[dict[str, Any]], block_s: float, nuisance: bool = False
-) -> list[dict[str, Any]]:
+def run_case(case: str, rows: list[dict[str, Any]], block_s: float) -> list[dict[str, Any]]:
     """The experiment on one case's stored rows."""
     from benchmarks.bench_calibration import exact_reference_env
     from l2calib import geometry as geo
@@ -148,7 +92,6 @@ def run_case(
     from l2calib.assess.polish import stencil
 
     env, runs, _, _ = exact_reference_env(case)
-    envs = nuisance_envs(case) if nuisance else {}
     T_true = torch.from_numpy(runs[0].T_imu_lidar)
     true_offset = float(runs[0].time_offset_s)
     d, out = stencil(7), []
@@ -167,9 +110,6 @@ def run_case(
             "error": _axes(err), "bound95": _axes(1.96 * sd), "newton_step": _axes(newton),
             "hessian_diag": [float(f"{x:.4g}") for x in np.diag(H)],
         }  # fmt: skip
-        if envs:
-            shifts = model_shift(envs, T, offset, H, newton, block_s)
-            row["model_shift"] = {k: _axes(v) for k, v in shifts.items()}
         print(row, flush=True)
         out.append(row)
     return out
@@ -180,10 +120,6 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=["handheld gtsam", "ugv all"])
     parser.add_argument("--block-s", type=float, default=2.0)
-    parser.add_argument(
-        "--nuisance", action="store_true", help="also the minimum's shift under NUISANCES"
-    )
-    parser.add_argument("--seeds", type=int, nargs="+", default=None, help="training seeds")
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     torch.set_default_dtype(torch.float64)
@@ -193,8 +129,7 @@ def main() -> None:
     rows = []
     for case in args.cases:
         mine = [r for r in stored["rows"] if r["case"] == case and "T_imu_lidar" in r]
-        mine = [r for r in mine if args.seeds is None or r["train_seed"] in args.seeds]
-        rows += run_case(case, mine, args.block_s, args.nuisance)
+        rows += run_case(case, mine, args.block_s)
     units = "error / bound95 / newton_step: rot x y z (deg), trans x y z (cm), offset (ms)"
     result = {"units": units, "block_s": args.block_s, "rows": rows, "machine": machine_info()}
     args.out.write_text(json.dumps(result, indent=1))
