@@ -36,6 +36,7 @@ from rich.console import Console
 from rich.table import Table
 
 from benchmarks.machine import machine_info
+from l2calib.references.ct_odometry import ROLLBACK_LOG
 
 RESULTS = Path(__file__).parent / "results" / "references.json"
 LIDARS = (
@@ -100,7 +101,7 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
             "simulator_version": SIMULATOR_VERSION,
         }  # fmt: skip
         t0 = time.perf_counter()
-        rollbacks = _Count("found lost; scans")  # ct-lidar's roll-backs (it logs each)
+        rollbacks = _Count(ROLLBACK_LOG)  # ct-lidar's roll-backs (it logs each)
         ct_log = logging.getLogger("l2calib.references.ct_odometry")
         ct_log.setLevel(logging.INFO)  # INFO records reach the handler (no other handler prints)
         ct_log.addHandler(rollbacks)
@@ -132,14 +133,14 @@ def run_one(lidar: str, profile: str, world: str, seed: int, duration: float, so
 
 
 class _Count(logging.Handler):
-    """Counts the log records whose message contains ``text``."""
+    """Counts the log records logged with the message template ``msg``."""
 
-    def __init__(self, text: str) -> None:
+    def __init__(self, msg: str) -> None:
         super().__init__(logging.INFO)
-        self.text, self.n = text, 0
+        self.msg, self.n = msg, 0
 
     def emit(self, record: logging.LogRecord) -> None:
-        self.n += self.text in record.getMessage()
+        self.n += record.msg == self.msg
 
 
 def met(row: dict[str, Any]) -> bool:

@@ -109,6 +109,7 @@ def propagate(
     p_th = torch.zeros(B, 3, 3, dtype=dtype)
     p_ba = torch.zeros(B, 3, 3, dtype=dtype)
     track_t, track_R, track_p, track_v, track_w, track_a = [t0], [], [], [], [], []
+    no_time = torch.zeros((), dtype=dtype)
     for j in range(max(steps, 1)):
         i = (lo + j).clamp(max=last)
         a_t = t0 if j == 0 else torch.minimum(torch.maximum(ts[i], t0), t1)
@@ -118,7 +119,7 @@ def propagate(
         # window ending past the last IMU sample (a positive time offset at a segment's end)
         # has i clamped there with a_t < t1, which integrated that stretch again on every
         # extra step other filters of the batch still took (a 50 ms offset: 649 ms, not 100).
-        dt = torch.where(lo + j < hi, (b_t - a_t).clamp_min(0.0), torch.zeros((), dtype=dtype))
+        dt = torch.where(lo + j < hi, (b_t - a_t).clamp_min(0.0), no_time)
         w_m = 0.5 * (imu.gyro[i] + imu.gyro[i + 1]) - state.bg  # [B, 3]
         a_m = 0.5 * (imu.accel[i] + imu.accel[i + 1]) - state.ba
         dt1 = dt[:, None]

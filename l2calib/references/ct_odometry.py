@@ -48,6 +48,8 @@ from l2calib.references.ct_tracking import TrackingChecks
 from l2calib.references.options import CtLidarOptions
 
 log = logging.getLogger(__name__)
+#: The INFO message of each roll-back (benchmarks count the records carrying it).
+ROLLBACK_LOG = "ct-lidar: scan %d found lost; scans %d-%d solved again (roll-back %d of at most %d)"
 
 __all__ = ["CtLidarOdometry", "ScanMotion", "right_jacobian"]
 
@@ -409,8 +411,7 @@ class CtLidarOdometry(TrackingChecks):
                 P = self._restore(saved[j - 1])
                 del motions[j:], ratios[j - 1 :], saved[j:]
                 self.rollbacks += 1
-                log.info("ct-lidar: scan %d found lost; scans %d-%d solved again (roll-back %d "
-                         "of at most %d)", k, j, k, attempt, o.rollback_max)  # fmt: skip
+                log.info(ROLLBACK_LOG, k, j, k, attempt, o.rollback_max)
                 self.lost_at_s = None
                 k = j
                 continue
