@@ -19,6 +19,7 @@ import json
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -135,10 +136,11 @@ def simulate_case(case: Case) -> list[Any]:
     ]
 
 
-def exact_reference_env(name: str | Case, candidates: int = 8):
+def exact_reference_env(name: str | Case, candidates: int = 8, exact: bool = True):
     """A case's selected data in one scoring env, with the exact LiDAR trajectory as reference.
 
-    ``name``: a case of :func:`cases`, or a :class:`Case`.
+    ``name``: a case of :func:`cases`, or a :class:`Case`. ``exact=False`` keeps the case's own
+    reference instead (e.g. ``ct-lidar``, computed from the simulated LiDAR scans).
 
     For benchmarks that score chosen extrinsics without training (one process, no workers).
 
@@ -153,27 +155,38 @@ def exact_reference_env(name: str | Case, candidates: int = 8):
 
     case = name if isinstance(name, Case) else next(c for c in cases(quick=False) if c.name == name)
     runs = simulate_case(case)
-    recipe = load_recipe(case.recipe, [o for o in case.overrides if not o.startswith("reference.")])
+    drop = "reference." if exact else "reference.name=gt"
+    recipe = load_recipe(case.recipe, [o for o in case.overrides if not o.startswith(drop)])
     gt = {r.sequence().name: r.gt_lidar for r in runs}
     data = Calibration(recipe).prepare(
         sequences=[r.sequence() for r in runs],
-        references=lambda segs: [
-            ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segs
-        ],
+        references=(
+            lambda segs: [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segs]
+        )
+        if exact
+        else None,
     )
     env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, candidates)
     return env, runs, data, recipe
 
 
-def run_case(case: Case, train_seed: int, extra: list[str] | None = None) -> dict[str, Any]:
+def run_case(
+    case: Case,
+    train_seed: int,
+    extra: list[str] | None = None,
+    change_runs: Callable[[Any], Any] | None = None,
+) -> dict[str, Any]:
     """Simulates the case's sequences and calibrates them; returns the row.
 
-    ``extra`` recipe overrides go after the case's own (e.g. the speed benchmark's settings).
+    ``extra`` recipe overrides go after the case's own (e.g. the speed benchmark's settings);
+    ``change_runs`` maps each simulated run to the one calibrated (e.g. its IMU re-stamped).
     """
     from l2calib.calibration import Calibration
     from l2calib.interfaces import ReferenceTrajectory
 
     runs = simulate_case(case)
+    if change_runs is not None:
+        runs = [change_runs(r) for r in runs]
     overrides = [o for o in case.overrides if o != "reference.name=gt"]
     recipe = load_recipe(case.recipe, [*overrides, *(extra or []), f"train.seed={train_seed}"])
     sequences = [r.sequence() for r in runs]

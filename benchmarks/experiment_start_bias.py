@@ -13,6 +13,8 @@ data. Each variant changes one thing:
 * ``start=`` the backend's ``start_biases`` option: ``zero`` (filters start with zero biases,
   the behaviour before 2026-12-04), ``gyro``, ``estimate`` (the default);
 * ``budget=S``: ``selection.budget_s`` (seconds of data selected);
+* ``ref=case``: the case's own reference (e.g. ``ct-lidar``) instead of the exact trajectory,
+  so that the move includes the reference's own error;
 * ``skip=S``: each segment's first ``S`` seconds are left out of the alignment and the reward
   (the filter still runs through them: its biases settle there).
 
@@ -83,7 +85,7 @@ def run_variant(name: str, variant: str) -> dict[str, Any]:
         overrides.append(f"selection.budget_s={spec['budget']}")
     case = dataclasses.replace(base, overrides=overrides, sim=sim)
     try:
-        env, runs, data, recipe = exact_reference_env(case)
+        env, runs, data, recipe = exact_reference_env(case, exact=spec.get("ref") != "case")
     finally:
         imu_model.IMUS[model] = saved
     skip_s = float(spec.get("skip", 0))

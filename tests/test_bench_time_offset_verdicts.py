@@ -1,0 +1,37 @@
+"""The time-offset benchmark judges each offset against its zero-offset twin (same scans)."""
+
+from benchmarks.bench_time_offset import _means_table, key, verdicts
+
+
+def _row(offset_ms: float, estimate: bool, t_cm: float, seed: int = 0, twin: bool = False) -> dict:
+    row = {
+        "profile": "handheld",
+        "reference": "ct-lidar",
+        "offset_ms": offset_ms,
+        "estimate": estimate,
+        "train_seed": seed,
+        "t_err_cm": t_cm,
+        "r_err_deg": 0.03,
+        "evaluations": 1000,
+    }
+    if estimate:
+        row.update(start="rates", offset_error_ms=0.2, time_offset_s=offset_ms / 1000)
+    if twin:
+        row["imu_restamped"] = True
+    return row
+
+
+def test_an_offset_is_judged_by_its_twin_not_by_the_zero_offset_recording():
+    zero = _row(0.0, False, 0.05)  # another recording: other scans, another reference
+    twin = _row(20.0, False, 0.60, twin=True)  # the +20 ms scans, IMU re-stamped to 0
+    on = _row(20.0, True, 0.75)
+    v = verdicts([zero, twin, on])
+    assert v[key(on)] == "met"  # 0.75 <= 0.60 + 0.2; against the 0 ms recording it would miss
+    assert key(twin) != key(_row(20.0, False, 0.60))  # a twin does not replace an "off" row
+
+
+def test_without_a_twin_the_verdict_says_it_compared_other_scans():
+    v = verdicts([_row(0.0, False, 0.05), _row(20.0, True, 0.75)])
+    assert v[key(_row(20.0, True, 0.75))] == "MISSED (0.75 cm > 0.25) vs the 0 ms recording"
+    means = "\n".join(_means_table([_row(0.0, False, 0.05), _row(20.0, True, 0.75)]))
+    assert "(other scans)" in means
