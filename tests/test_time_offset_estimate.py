@@ -38,3 +38,15 @@ def test_weak_excitation_is_named_not_estimated():
     est = correlate_rates(poses, imu)
     assert not est.observable
     assert "|ω| hardly varies" in est.reason and np.isnan(est.time_offset_s)
+
+
+@pytest.mark.parametrize("rate_hz", [100, 40])
+def test_no_half_grid_bias_whatever_the_reference_rate(rate_hz):
+    """A 100 Hz reference (an even 10 ms box) was found 0.52 ms late, a 40 Hz one was not."""
+    run = simulate(SimConfig.model_validate({"duration_s": 8.0, "seed": 4, "rig": {}}))
+    seq = run.sequence()
+    step = 1_000_000_000 // rate_hz
+    stamps = np.arange(seq.start_ns + 1_000_000_000, seq.end_ns - 1_000_000_000, step)
+    est = correlate_rates(run.gt_lidar.interpolate(stamps), seq.imu)
+    assert est.observable, est.reason
+    assert abs(est.time_offset_s) < 1e-4
