@@ -110,11 +110,12 @@ def run_row(
     ``same_scans``: the recording of ``offset_ms`` with its IMU re-stamped to offset 0
     (:func:`restamped`), estimation off: that offset's zero-offset twin.
     """
-    case = _case(offset_ms, reference, estimate and not same_scans, profile, start)
+    estimate = estimate and not same_scans
+    case = _case(offset_ms, reference, estimate, profile, start)
     row = run_case(case, train_seed=train_seed, change_runs=restamped if same_scans else None)
     row.update(profile=profile, offset_ms=offset_ms, reference=reference, estimate=estimate)
     if same_scans:
-        row.update(estimate=False, imu_restamped=True)
+        row["imu_restamped"] = True
     row["start"] = start if estimate else "-"
     if estimate:
         row["offset_error_ms"] = round(1000 * (row["time_offset_s"] - offset_ms / 1000), 3)
