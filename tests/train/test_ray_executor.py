@@ -103,8 +103,10 @@ def test_a_killed_actor_is_restarted_and_its_candidates_rescored(ray_instance, f
         worker.start()
         time.sleep(0.5)  # the actor is inside its 1.5 s evaluation
         os.kill(pid, signal.SIGKILL)
-        worker.join(60)
-        assert not worker.is_alive()
+        # A restart imports torch and prepares the backend again: minutes on 2 loaded cores (it
+        # took over 60 s beside a calibration in CI, 2026-12-04). Correctness, not speed, is tested.
+        worker.join(300)
+        assert not worker.is_alive(), "the restarted actor did not rescore the batch in 300 s"
         assert ray_instance.get(env.actors[0].pid.remote()) != pid  # a new process
     finally:
         env.close()
