@@ -81,16 +81,12 @@ def restamped(run: Any) -> Any:
     ``-time_offset_s`` (``t0_ns`` with them, so the exact poses stay where they were).
     """
     from l2calib.data import ImuSamples
-    from l2calib.trajectory import Trajectory
 
     d_ns = -run.offset_ns
-    g = run.gt_imu
     return dataclasses.replace(
         run,
         imu=ImuSamples(run.imu.stamps_ns + d_ns, run.imu.gyro_rad_s, run.imu.accel_m_s2),
-        gt_imu=Trajectory(
-            g.stamps_ns + d_ns, g.t_world_body, g.quat_xyzw, g.body_frame, g.world_frame
-        ),  # fmt: skip
+        gt_imu=run.gt_imu.shifted(d_ns),
         time_offset_s=0.0,
         t0_ns=run.t0_ns + d_ns,
     )

@@ -35,3 +35,20 @@ def test_without_a_twin_the_verdict_says_it_compared_other_scans():
     assert v[key(_row(20.0, True, 0.75))] == "MISSED (0.75 cm > 0.25) vs the 0 ms recording"
     means = "\n".join(_means_table([_row(0.0, False, 0.05), _row(20.0, True, 0.75)]))
     assert "(other scans)" in means
+
+
+def test_a_twin_has_the_same_scans_and_poses_with_the_imu_on_the_lidar_clock():
+    import numpy as np
+
+    from benchmarks.bench_time_offset import restamped
+    from l2calib.sim import SimConfig, simulate
+
+    cfg = {"duration_s": 2.0, "seed": 0, "lidar": {"columns": 64}, "rig": {"time_offset_s": 0.02}}
+    run = simulate(SimConfig.model_validate(cfg))
+    twin = restamped(run)
+    assert twin.scans is run.scans and twin.time_offset_s == 0.0
+    assert np.array_equal(twin.imu.stamps_ns, run.imu.stamps_ns - 20_000_000)
+    t = run.gt_lidar.stamps_ns[2:5]
+    assert np.array_equal(twin.lidar_poses(t), run.lidar_poses(t))  # the same motion
+    # a scan stamp now reads the same instant on both clocks
+    assert np.allclose(twin.imu_poses(t, clock="imu") @ twin.T_imu_lidar, twin.lidar_poses(t))
