@@ -258,6 +258,7 @@ def _offset_fields(result: Any, true_s: float) -> dict[str, Any]:
         "time_offset_s": round(float(result.time_offset_s), 5),
         "time_offset_true_s": float(true_s),
         "time_offset_start_s": result.time_offset_start_s,
+        "time_offset_method": result.time_offset_method,
         "time_offset_resolution_s": round(float(res.resolution_s), 5) if finite else None,
         "time_offset_probe_drops": None if res is None else [round(d, 6) for d in res.drops],
     }

@@ -57,15 +57,20 @@ def _case(
     reference: str,
     estimate: bool,
     profile: str = "handheld",
-    start: str = "rates",
+    start: str = "hold",
+    known: bool = False,
 ) -> Case:
     sim = dict(OS1_16_RIG, rig={**RIG, "time_offset_s": offset_ms / 1000})
     overrides = [
         f"reference.name={reference}",
         f"train.estimate_time_offset={str(estimate).lower()}",
     ]
+    if known:  # the true offset, held: the offset-free twin on the recording's own segments
+        overrides.append(f"train.known_time_offset_s={offset_ms / 1000}")
     if estimate and start == "zero":  # the estimation starts at 0, not at the rates' offset
         overrides.append("train.init_time_offset_s=0.0")
+    if estimate and start in ("rates", "zero"):  # estimated jointly, never held
+        overrides.append("train.time_offset_from_rates=start")
     seeds = [0]
     if profile == "uav":
         overrides += ["selection.window_s=10", "selection.budget_s=20"]
@@ -97,21 +102,27 @@ def run_row(
     reference: str,
     estimate: bool,
     profile: str,
-    start: str = "rates",
+    start: str = "hold",
     train_seed: int = 0,
     same_scans: bool = False,
+    known: bool = False,
 ) -> dict[str, Any]:
     """One calibration, with the offset's fields (and ``inspect``'s estimate on the uav row).
 
     ``same_scans``: the recording of ``offset_ms`` with its IMU re-stamped to offset 0
-    (:func:`restamped`), estimation off: that offset's zero-offset twin.
+    (:func:`restamped`), estimation off: that offset's zero-offset twin. ``known``: the
+    recording as it is with the true offset held (``train.known_time_offset_s``), estimation
+    off: the twin on the recording's own segments (the selection runs on the IMU's clock, and
+    re-stamping it by 50 ms changed which windows were selected).
     """
-    estimate = estimate and not same_scans
-    case = _case(offset_ms, reference, estimate, profile, start)
+    estimate = estimate and not same_scans and not known
+    case = _case(offset_ms, reference, estimate, profile, start, known=known)
     row = run_case(case, train_seed=train_seed, change_runs=restamped if same_scans else None)
     row.update(profile=profile, offset_ms=offset_ms, reference=reference, estimate=estimate)
     if same_scans:
         row["imu_restamped"] = True
+    if known:
+        row["offset_known"] = True
     row["start"] = start if estimate else "-"
     if estimate:
         row["offset_error_ms"] = round(1000 * (row["time_offset_s"] - offset_ms / 1000), 3)
@@ -149,14 +160,18 @@ def _inspect(case: Case) -> dict[str, Any]:
 def key(r: dict[str, Any]) -> tuple:
     """A row's identity in the JSON (rows with the same key replace each other)."""
     seed, twin = r.get("train_seed", 0), r.get("imu_restamped", False)
-    return r["profile"], r["offset_ms"], r["reference"], r["estimate"], start_of(r), seed, twin
+    known = r.get("offset_known", False)
+    head = r["profile"], r["offset_ms"], r["reference"], r["estimate"], start_of(r), seed, twin
+    return (*head, known) if known else head
 
 
 def start_of(r: dict[str, Any]) -> str:
-    """Where the offset's estimation started: ``rates``, ``zero`` or ``-`` (not estimated).
+    """How the offset was found: ``hold``, ``rates``, ``zero`` or ``-`` (not estimated).
 
-    ``rates``: the references' |ω| against the gyro (the default since 2026-12-03); rows from
-    before that existed started at zero.
+    ``hold`` (the default since 2026-12-05): held at the references' |ω| correlation with the
+    gyro where it is sharp (``time_offset_method`` says whether it was), else estimated jointly;
+    ``rates``: estimated jointly from that correlation (the default 2026-12-03 to 12-04); rows
+    from before that started at zero.
     """
     if not r["estimate"]:
         return "-"
@@ -166,14 +181,16 @@ def start_of(r: dict[str, Any]) -> str:
 def baselines(rows: list[dict[str, Any]]) -> dict[tuple, dict[str, Any]]:
     """Zero-offset runs with estimation off by (reference, seed, offset of the scans).
 
-    Offset 0: the 0 ms recording; another offset: that recording's twin (``imu_restamped``).
+    Offset 0: the 0 ms recording; another offset: that recording's twin — with the true offset
+    held (``offset_known``: the recording's own segments) where there is one, else with its IMU
+    re-stamped (``imu_restamped``).
     """
-    return {
-        (r["reference"], r.get("train_seed", 0), r["offset_ms"]): r
-        for r in rows
-        if r["profile"] == "handheld" and not r["estimate"]
-        and (r["offset_ms"] == 0 or r.get("imu_restamped"))
-    }  # fmt: skip
+    twins = [
+        r for r in rows if r["profile"] == "handheld" and not r["estimate"]
+        and (r["offset_ms"] == 0 or r.get("imu_restamped") or r.get("offset_known"))
+    ]  # fmt: skip
+    twins.sort(key=lambda r: bool(r.get("offset_known")))  # a known-offset twin wins
+    return {(r["reference"], r.get("train_seed", 0), r["offset_ms"]): r for r in twins}
 
 
 def baseline_of(base: dict[tuple, dict[str, Any]], r: dict[str, Any]) -> dict[str, Any] | None:
@@ -268,7 +285,7 @@ def render(results: dict[str, Any]) -> str:
 
 
 def _means_table(rows: list[dict[str, Any]]) -> list[str]:
-    """Per reference and offset, means over the training seeds against the baseline's mean.
+    """Per reference, method and offset, means over the training seeds against the baseline's mean.
 
     One seed's error varies more than the issue's slack (the gt baseline alone: 0.20-0.40 cm
     over three seeds), so the verdict that counts compares means over the same seeds.
@@ -278,50 +295,57 @@ def _means_table(rows: list[dict[str, Any]]) -> list[str]:
     out = [
         "\n**Means over training seeds** (the verdict that counts: one seed's error varies more "
         "than the slack):\n",
-        "| reference | offset ms | seeds | max offset error ms | t cm | r deg | evals "
-        "| baseline t cm / r deg | verdict |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| reference | offset found by | offset ms | seeds | max offset error ms | t cm | r deg "
+        "| evals | baseline t cm / r deg | verdict |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for ref in sorted({r["reference"] for r in hand}):
-        for off in sorted({r["offset_ms"] for r in hand if r["reference"] == ref}):
-            on = [r for r in hand if r["reference"] == ref and r["estimate"]
-                  and r["offset_ms"] == off]  # fmt: skip
-            pairs = [(r, baseline_of(base, r)) for r in on]
-            pairs = [(r, b) for r, b in pairs if b is not None]
-            if not pairs:
-                continue
-            on, bs = [r for r, _ in pairs], [b for _, b in pairs]
-            bt = sum(b["t_err_cm"] for b in bs) / len(bs)
-            br = sum(b["r_err_deg"] for b in bs) / len(bs)
-            t_max = max(bt * (1 + SLACK[0]), bt + SLACK[1])
-            r_max = max(br * (1 + SLACK[0]), br + SLACK[2])
-            other = off != 0 and any(b.get("other_scans") for b in bs)
-            t = sum(r["t_err_cm"] for r in on) / len(on)
-            rr = sum(r["r_err_deg"] for r in on) / len(on)
-            worst = max(abs(r["offset_error_ms"]) for r in on)
-            ev = sum(r["evaluations"] for r in on) / len(on)
-            why = [f"offset {worst:.2f} ms"] if worst > OFFSET_TARGET_MS else []
-            why += [f"{t:.2f} cm > {t_max:.2f}"] if t > t_max else []
-            why += [f"{rr:.3f} deg > {r_max:.3f}"] if rr > r_max else []
-            verdict = "met" if not why else "MISSED (" + "; ".join(why) + ")"
-            twin = "0 ms recording" if off == 0 else "other scans" if other else "twin"
-            out.append(
-                f"| {ref} | {off:+g} | {len(on)} | {worst:.2f} | {t:.2f} | {rr:.3f} | {ev:.0f} "
-                f"| {bt:.2f} / {br:.3f} ({twin}) | {verdict} |"
-            )
+    groups = sorted({(r["reference"], start_of(r), r["offset_ms"]) for r in hand if r["estimate"]})
+    for ref, start, off in groups:
+        on = [r for r in hand if r["reference"] == ref and r["estimate"]
+              and r["offset_ms"] == off and start_of(r) == start]  # fmt: skip
+        pairs = [(r, baseline_of(base, r)) for r in on]
+        pairs = [(r, b) for r, b in pairs if b is not None]
+        if not pairs:
+            continue
+        on, bs = [r for r, _ in pairs], [b for _, b in pairs]
+        bt = sum(b["t_err_cm"] for b in bs) / len(bs)
+        br = sum(b["r_err_deg"] for b in bs) / len(bs)
+        t_max = max(bt * (1 + SLACK[0]), bt + SLACK[1])
+        r_max = max(br * (1 + SLACK[0]), br + SLACK[2])
+        other = off != 0 and any(b.get("other_scans") for b in bs)
+        t = sum(r["t_err_cm"] for r in on) / len(on)
+        rr = sum(r["r_err_deg"] for r in on) / len(on)
+        worst = max(abs(r["offset_error_ms"]) for r in on)
+        ev = sum(r["evaluations"] for r in on) / len(on)
+        why = [f"offset {worst:.2f} ms"] if worst > OFFSET_TARGET_MS else []
+        why += [f"{t:.2f} cm > {t_max:.2f}"] if t > t_max else []
+        why += [f"{rr:.3f} deg > {r_max:.3f}"] if rr > r_max else []
+        verdict = "met" if not why else "MISSED (" + "; ".join(why) + ")"
+        twin = "0 ms recording" if off == 0 else "other scans" if other else "twin"
+        out.append(
+            f"| {ref} | {START_WORDS.get(start, start)} | {off:+g} | {len(on)} | {worst:.2f} "
+            f"| {t:.2f} | {rr:.3f} | {ev:.0f} | {bt:.2f} / {br:.3f} ({twin}) | {verdict} |"
+        )
     return out
+
+
+START_WORDS = {"hold": "hold (default)", "rates": "joint from rates", "zero": "joint from 0"}
 
 
 def _estimate_text(r: dict[str, Any]) -> str:
     if r["estimate"]:
         return "on"
+    if r.get("offset_known"):
+        return "off (twin: true offset held)"
     return "off (twin: IMU re-stamped to 0)" if r.get("imu_restamped") else "off"
 
 
 def _start_text(r: dict[str, Any]) -> str:
     start = start_of(r)
-    if start == "rates" and r.get("time_offset_start_s") is not None:
-        return f"rates ({1000 * r['time_offset_start_s']:+.1f} ms)"
+    if start in ("rates", "hold") and r.get("time_offset_start_s") is not None:
+        held = start == "hold" and (r.get("time_offset_method") or "").startswith("held")
+        word = "held" if held else "rates"
+        return f"{word} ({1000 * r['time_offset_start_s']:+.2f} ms)"
     return start
 
 
@@ -338,6 +362,14 @@ def main() -> None:
         "re-stamped onto the LiDAR clock, estimation off (the baseline that offset is judged by)",
     )  # fmt: skip
     parser.add_argument(
+        "--known-twins", action="store_true",
+        help="also each nonzero offset's twin on its own segments: the recording as it is with "
+        "the true offset held (train.known_time_offset_s), estimation off",
+    )  # fmt: skip
+    parser.add_argument("--estimate", action=argparse.BooleanOptionalAction, default=True,
+                        help="the rows with the offset estimated (--no-estimate: only "
+                        "baselines and twins)")  # fmt: skip
+    parser.add_argument(
         "--off", action="store_true",
         help="also each offset with estimation off (what not estimating a real offset costs)",
     )  # fmt: skip
@@ -350,8 +382,9 @@ def main() -> None:
         "costs where the offset is weakly observable",
     )  # fmt: skip
     parser.add_argument(
-        "--start", choices=("rates", "zero"), default="rates",
-        help="where the offset's estimation starts (rates, the default: the references' |ω|)",
+        "--start", choices=("hold", "rates", "zero"), default="hold",
+        help="how the offset is found: hold (the default: held at the references' |ω| "
+        "correlation where it is sharp), rates (estimated jointly from there), zero (from 0)",
     )  # fmt: skip
     parser.add_argument(
         "--train-seeds", type=int, nargs="+", default=[0], help="training seeds per row"
@@ -365,22 +398,29 @@ def main() -> None:
     torch.set_default_dtype(torch.float64)
     console = Console()
     offsets = args.offsets_ms if args.handheld else []
-    plan = [(o, ref, True, "handheld", False) for ref in args.references for o in offsets]
+    refs, nonzero = args.references, [o for o in offsets if o]
+    plan = [(o, r, True, "handheld", "") for r in refs for o in offsets] if args.estimate else []
     if args.off:
-        plan += [(o, r, False, "handheld", False) for r in args.references for o in offsets if o]
+        plan += [(o, r, False, "handheld", "") for r in refs for o in nonzero]
     if args.same_scans:
-        plan += [(o, r, False, "handheld", True) for r in args.references for o in offsets if o]
+        plan += [(o, r, False, "handheld", "restamped") for r in refs for o in nonzero]
+    if args.known_twins:
+        plan += [(o, r, False, "handheld", "known") for r in refs for o in nonzero]
     if args.baseline and args.handheld:
-        plan = [(0.0, ref, False, "handheld", False) for ref in args.references] + plan
+        plan = [(0.0, r, False, "handheld", "") for r in refs] + plan
     if args.uav:
-        plan.append((20.0, "gt", True, "uav", False))
+        plan.append((20.0, "gt", True, "uav", ""))
     if args.uav_zero:
-        plan += [(0.0, "gt", False, "uav", False), (0.0, "gt", True, "uav", False)]
+        plan += [(0.0, "gt", False, "uav", ""), (0.0, "gt", True, "uav", "")]
     plan = [(*p, seed) for seed in args.train_seeds for p in plan]
+    twin_words = {"restamped": "IMU re-stamped to 0 ms", "known": "true offset held"}
     for n, (offset, ref, est, profile, twin, seed) in enumerate(plan, 1):
-        what = "IMU re-stamped to 0 ms, estimation off" if twin else f"estimation {est}"
+        what = f"{twin_words[twin]}, estimation off" if twin else f"estimation {est}"
         console.print(f"[{n}/{len(plan)}] {profile} {offset:+g} ms, {ref}, {what}, seed {seed}")
-        row = run_row(offset, ref, est, profile, args.start, seed, same_scans=twin)
+        row = run_row(
+            offset, ref, est, profile, args.start, seed,
+            same_scans=twin == "restamped", known=twin == "known",
+        )  # fmt: skip
         existing = json.loads(args.out.read_text()) if args.out.is_file() else {"rows": []}
         rows = [r for r in existing["rows"] if key(r) != key(row)] + [row]
         results = {"benchmark": "bench_time_offset", "rows": rows, "machine": machine_info()}

@@ -130,7 +130,9 @@ def compute_references(
             data=recipe.data,
             sequences=sequences,
             progress=progress,
-            estimate_time_offset=recipe.train.estimate_time_offset,
+            # a known offset: a shift the clock check finds is that offset, not a file clock
+            estimate_time_offset=recipe.train.estimate_time_offset
+            or recipe.train.known_time_offset_s is not None,
             time_offset_bound_s=time_offset_bound_s(recipe),
         )
         return source.compute(list(segments))
@@ -208,10 +210,10 @@ def add_references(
     say(f"computing the {recipe.reference.name} reference")
     data.references = compute_references(recipe, data.segments, data.sequences, data.notes.append)
     data.segments = kept_segments(data.segments, data.references)
-    if data.time_offset_hint_s is not None:
+    if data.time_offset_hint_s is not None and recipe.train.known_time_offset_s is None:
         data.notes.append(
             f"the {recipe.reference.name} reference's clock check measured a LiDAR–IMU time "
             f"offset of {1000 * data.time_offset_hint_s:+.1f} ms (t_imu = t_lidar + offset): "
-            "the estimation starts from it"
+            "the offset starts from it (where the rotation rates agree, it is held there)"
         )
     return data

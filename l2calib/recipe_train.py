@@ -41,6 +41,20 @@ class TrainConfig(StrictModel):
         "(s, t_imu = t_lidar + offset; `l2calib inspect` prints it); null: the reference's "
         "clock check, else 0",
     )
+    time_offset_from_rates: Literal["hold", "start"] = Field(
+        "hold",
+        description="where the references' rotation rate pins the LiDAR-IMU offset (a sharp "
+        "|ω| correlation with the gyro, hand-held data): hold = keep the offset there and search "
+        "the extrinsic only; start = start the joint estimation there. Elsewhere (flat "
+        "correlation: uav, ugv) the offset is estimated jointly either way (docs/time_offset.md)",
+    )
+    known_time_offset_s: float | None = Field(
+        None,
+        ge=-0.5,
+        le=0.5,
+        description="a LiDAR-IMU time offset that is known and held fixed, not estimated (s, "
+        "t_imu = t_lidar + offset); needs estimate_time_offset: false",
+    )
     lr: float = Field(3e-2, gt=0, description="Adam rate of the spreads and the value head")
     mean_step_scale: float = Field(
         0.3,
@@ -161,6 +175,16 @@ class TrainConfig(StrictModel):
         "the motion counts as planar (l2calib.selection.planar); the simulator's ground vehicle "
         "gives 0.998, its drone 0.83-0.92, hand-held rigs 0.40-0.43",
     )
+
+    @model_validator(mode="after")
+    def _known_offset_is_not_estimated(self) -> TrainConfig:
+        if self.known_time_offset_s is not None and self.estimate_time_offset:
+            raise ValueError(
+                f"train.known_time_offset_s={self.known_time_offset_s} holds the time offset "
+                "fixed, but train.estimate_time_offset is true: set it to false to hold the "
+                "offset, or drop known_time_offset_s (init_time_offset_s starts an estimate)"
+            )
+        return self
 
     @model_validator(mode="after")
     def _coarse_above_fine(self) -> TrainConfig:

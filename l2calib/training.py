@@ -26,7 +26,7 @@ from l2calib.assess.result import CalibrationResult
 from l2calib.errors import TrainingError
 from l2calib.interfaces import Extrinsic
 from l2calib.interrupt import Interrupted, stop_workers
-from l2calib.pipeline import PreparedData, time_offset_bound_s
+from l2calib.pipeline import PreparedData
 from l2calib.recipe import Recipe
 from l2calib.train.env_build import set_data_fraction
 
@@ -140,8 +140,10 @@ def train_policy(
         raise TrainingError(
             "resume needs the output directory of the run to continue", fix="pass its out_dir"
         )
+    from l2calib.train.offset_hold import offset_from_rates
+
     say = stage or (lambda _msg: None)
-    _offset_from_rates(recipe, data, say)
+    recipe, offset_method = offset_from_rates(recipe, data, say)
     hold = _vertical_hold(recipe, data, say)
     where = " on Ray actors" if recipe.train.executor == "ray" else ""
     say(f"preparing the {recipe.backend.name} odometry{where}")
@@ -171,6 +173,8 @@ def train_policy(
                 f"(restart {k + 1} of at most {recipe.train.restarts})"
             )
         run = TrainedRun(*_keep_best(attempts))
+        if run.result.time_offset_s is not None:
+            run.result.time_offset_method = offset_method
         run.result.stage_s = {"odometry_preparation": prepared_s, **run.result.stage_s}
         t0 = time.monotonic()
         _add_trajectories(run, env, np.eye(4) if before is None else before)
@@ -225,34 +229,6 @@ def _vertical_hold(recipe: Recipe, data: PreparedData, say: Callable[[str], None
             + (f"; weak-data settings {also} (set them in the recipe to override)" if also else "")
         )
     return hold
-
-
-def _offset_from_rates(recipe: Recipe, data: PreparedData, say: Callable[[str], None]) -> None:
-    """Sets ``data.rate_offset_s`` where the offset is estimated and nothing else starts it.
-
-    The references' ``|ω|`` against the gyro (:func:`~l2calib.time_offset_estimate.
-    offset_from_references`); a recipe's ``train.init_time_offset_s`` or a reference's clock
-    check comes first.
-    """
-    from l2calib.time_offset_estimate import offset_from_references
-
-    train = recipe.train
-    if not train.estimate_time_offset or train.init_time_offset_s is not None:
-        return
-    if data.time_offset_hint_s is not None:
-        return
-    bound = time_offset_bound_s(recipe) or 0.2
-    est = offset_from_references(data.references, data.segments, data.sequences, bound)
-    if est is None:
-        return
-    data.rate_offset_s = est.time_offset_s
-    msg = (
-        f"the references' rotation rate follows the gyro best at a LiDAR-IMU offset of "
-        f"{1000 * est.time_offset_s:+.1f} ms (t_imu = t_lidar + offset; correlation "
-        f"{est.correlation:.3f}): the offset's estimation starts there"
-    )
-    data.notes.append(msg)
-    say(msg)
 
 
 def _locate_checkpoint(exc: Interrupted, out_dir: Path, attempt: int) -> None:
@@ -393,6 +369,8 @@ def _attempt(
         )  # fmt: skip
         best = polished.extrinsic
     T_mode, offset = best.T_imu_lidar, best.time_offset_s
+    if offset is None and cfg.known_time_offset_s is not None:  # held, not estimated
+        offset = start = float(cfg.known_time_offset_s)
     score = _Scorer(env, offset)
     stage_s["refinement"] = time.monotonic() - clock
     clock = time.monotonic()

@@ -52,3 +52,13 @@ def test_a_twin_has_the_same_scans_and_poses_with_the_imu_on_the_lidar_clock():
     assert np.array_equal(twin.lidar_poses(t), run.lidar_poses(t))  # the same motion
     # a scan stamp now reads the same instant on both clocks
     assert np.allclose(twin.imu_poses(t, clock="imu") @ twin.T_imu_lidar, twin.lidar_poses(t))
+
+
+def test_a_twin_with_the_true_offset_held_wins_over_a_restamped_one():
+    restamped = _row(50.0, False, 0.43, twin=True)  # other segments were selected
+    known = {**_row(50.0, False, 0.66), "offset_known": True}  # the recording's own segments
+    on = _row(50.0, True, 0.68)
+    assert key(known) not in (key(restamped), key(_row(50.0, False, 0.66)))
+    for rows in ([restamped, known, on], [known, restamped, on]):
+        assert verdicts(rows)[key(on)] == "met"  # judged by the known twin, whatever the order
+    assert verdicts([restamped, on])[key(on)].startswith("MISSED")

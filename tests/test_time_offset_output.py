@@ -3,6 +3,7 @@ FAST-LIO / LI-Init forms, and the starting value from the reference's clock chec
 
 from __future__ import annotations
 
+import json
 import subprocess
 import sys
 
@@ -57,14 +58,22 @@ def test_written_offset_carries_its_convention_and_pasteable_forms(tmp_path):
 
 
 def test_two_iteration_calibrate_with_estimation_writes_the_offset(tmp_path):
-    """A 50 ms offset: the gt-file clock check starts the estimation there, the run writes it."""
+    """A 50 ms offset: the clock check and the rate correlation find it; held and written."""
     from l2calib.sim import SimConfig, simulate, write_run
 
     cfg = {"duration_s": 6.0, "seed": 4, "lidar": {"model": "ouster-os1-16", "columns": 256}}
     cfg["rig"] = {"time_offset_s": 0.05}
-    files = write_run(simulate(SimConfig.model_validate(cfg)), tmp_path / "sim")
+    run = simulate(SimConfig.model_validate(cfg))
+    files = write_run(run, tmp_path / "sim")
     out = tmp_path / "out"
+    # a prior at the truth: two iterations from no guess are a coin toss (a "not-calibrated"
+    # status writes no paste-ready blocks); this test is about the offset, not the search
+    truth = CalibrationResult(run.T_imu_lidar)
+    prior = {"translation_m": truth.T_imu_lidar[:3, 3].round(4).tolist(),
+             "rpy_deg": truth.rpy_deg.round(3).tolist(),
+             "sigma_translation_m": 0.02, "sigma_rotation_deg": 2.0}  # fmt: skip
     sets = [
+        f"policy.prior={json.dumps(prior)}",
         "train.candidates_per_iteration=8", "train.refine_rounds=1", "train.restarts=0",
         "selection.window_s=3", "selection.budget_s=3", "train.max_iterations=2",
         "train.estimate_time_offset=true", "reference.name=gt-file",
@@ -77,8 +86,11 @@ def test_two_iteration_calibrate_with_estimation_writes_the_offset(tmp_path):
     text = " ".join(proc.stdout.split())
     assert "measured a LiDAR–IMU time offset of +50.0 ms" in text
     data = yaml.safe_load((out / "calibration.yaml").read_text())
-    assert data["training"]["iterations"] == 2
+    assert 1 <= data["training"]["iterations"] <= 2  # a prior this narrow may hand over at 1
     assert isinstance(data["time_offset_s"], float) and abs(data["time_offset_s"]) < 0.2
     assert data["time_offset"]["start_s"] == pytest.approx(0.05, abs=0.011)
+    # the clock check and the references' rate agree and are sharp: the offset is held there
+    assert data["time_offset"]["method"].startswith("held at the references' rotation-rate")
+    assert data["time_offset_s"] == pytest.approx(0.05, abs=0.001)
     assert len(data["time_offset"]["probe_drops"]) == len(OFFSET_STEPS_S)
     assert data["fast_lio"]["time_offset_lidar_to_imu"] == data["time_offset_s"]

@@ -36,6 +36,8 @@ class CalibrationResult:
     # l2calib.assess.time_offset_probe.OffsetResolution; where the offset's estimation began (s)
     time_offset_resolution: Any | None = None
     time_offset_start_s: float | None = None
+    # how the offset was found: held at the rate correlation, known, or estimated jointly
+    time_offset_method: str | None = None
     final_reward: float | None = None
     evaluations: int = 0
     # Σ over every odometry evaluation of the scans it estimated (the work; coarse-to-fine
@@ -172,6 +174,7 @@ class CalibrationResult:
         """``time_offset``: convention, resolution from the reward probe, starting value."""
         block: dict[str, Any] = {
             "convention": "t_imu = t_lidar + time_offset_s (s)",
+            **({"method": self.time_offset_method} if self.time_offset_method else {}),
             "start_s": None
             if self.time_offset_start_s is None
             else float(self.time_offset_start_s),

@@ -84,6 +84,8 @@ def print_result(console, result, truth=None) -> None:
     if result.time_offset_s is not None:
         res = result.time_offset_resolution
         how = "" if res is None else f", resolution {_ms(res.resolution_s)}"
+        if (result.time_offset_method or "").startswith("held"):
+            how += "; held at the rotation-rate correlation"
         console.print(
             f"time offset {1000 * result.time_offset_s:+.2f} ms (t_imu = t_lidar + offset"
             f"{how}); FAST-LIO: common/time_offset_lidar_to_imu: {result.time_offset_s:.6f}"

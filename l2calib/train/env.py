@@ -137,6 +137,8 @@ class CalibrationEnv(ScoringEnv):
             share of a batch :meth:`score_share` scores).
         hold: Holds every candidate's vertical lever arm before the odometry runs
             (:class:`~l2calib.train.vertical_hold.VerticalHold`), or ``None``.
+        fixed_time_offset_s: A LiDAR–IMU offset (s) every candidate is scored with when the
+            caller gives none (``train.known_time_offset_s``; 7-dim actions), or ``None``.
     """
 
     def __init__(
@@ -148,10 +150,17 @@ class CalibrationEnv(ScoringEnv):
         time_offset: bool = False,
         worker_index: int = 0,
         hold: Any | None = None,
+        fixed_time_offset_s: float | None = None,
     ) -> None:
         super().__init__(num_candidates, 8 if time_offset else 7)
+        if time_offset and fixed_time_offset_s is not None:
+            raise TrainingError(
+                "a fixed time offset and an estimated one were both asked for",
+                fix="set train.estimate_time_offset: false with train.known_time_offset_s",
+            )
         self.backend = backend
         self.hold = hold
+        self.fixed_time_offset_s = fixed_time_offset_s
         self.worker_index = worker_index
         self.references = list(references)
         self.reward_config = reward or RewardConfig()
@@ -180,7 +189,7 @@ class CalibrationEnv(ScoringEnv):
         """
         if self.hold is not None:
             T_imu_lidar = self.hold.apply(T_imu_lidar)
-        outputs = self.backend.evaluate(T_imu_lidar, time_offset_s)
+        outputs = self.backend.evaluate(T_imu_lidar, self._offsets(T_imu_lidar, time_offset_s))
         if len(outputs) != len(self.references):
             raise TrainingError(
                 f"the backend returned {len(outputs)} segments for {len(self.references)} "
@@ -210,6 +219,12 @@ class CalibrationEnv(ScoringEnv):
         )
         self.evaluations += int(T_imu_lidar.shape[0])
         return breakdown, status
+
+    def _offsets(self, T_imu_lidar: torch.Tensor, given: torch.Tensor | None):
+        """``given`` offsets ``[K]`` (s), else the fixed offset for every candidate, else None."""
+        if given is not None or self.fixed_time_offset_s is None:
+            return given
+        return torch.full((T_imu_lidar.shape[0],), self.fixed_time_offset_s, dtype=F64)
 
     def use_data_fraction(self, fraction: float) -> int:
         """Scores the following steps on about ``fraction`` of the data (coarse-to-fine).
@@ -266,7 +281,7 @@ class CalibrationEnv(ScoringEnv):
         if self.hold is not None:
             T = self.hold.apply(T)
         out = []
-        for i, o in enumerate(self.backend.evaluate(T, offsets)):
+        for i, o in enumerate(self.backend.evaluate(T, self._offsets(T, offsets))):
             T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
             ref = T_ref[ok][:, :3, 3]
             pos = o.T_world_lidar[:, ok][..., :3, 3]
@@ -314,6 +329,7 @@ def make_env(
         time_offset=recipe.train.estimate_time_offset,
         worker_index=worker_index,
         hold=hold,
+        fixed_time_offset_s=recipe.train.known_time_offset_s,
     )
 
 
