@@ -19,7 +19,13 @@ zero-offset twin is therefore the SAME recording with the IMU re-stamped onto th
 its twin when there is one, else against the 0 ms recording (marked "other scans"). Re-stamping
 the IMU of one recording changes the reward at the truth by less than 1e-6 (2026-12-04, a
 helper's measurement: the backend handles the offset exactly), so the twin isolates what
-estimating the offset costs from what the scans' own reference error costs.
+estimating the offset costs from what the scans' own reference error costs. Re-stamping also
+moves what the selection (on the IMU's clock) picks — at ±50 ms it picked other windows — so
+the twin that counts holds the true offset on the recording as it is (``--known-twins``,
+``train.known_time_offset_s``, ``offset_known`` in the row): same segments, offset known.
+
+``--start``: ``hold`` (the default since 2026-12-05: the offset held at the references' |ω|
+correlation where it is sharp), ``rates`` (estimated jointly from there), ``zero``.
 
 ``--uav`` adds one UAV sequence with a 20 ms offset: what the
 offset's resolution probe and ``inspect``'s estimator report where the offset is weakly
