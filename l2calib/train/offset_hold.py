@@ -74,8 +74,9 @@ def offset_from_rates(
         )
         data.notes.append(msg)
         say(msg)
+        value = float(est.time_offset_s)  # a plain float in the recipe the workers receive
         held = train.model_copy(
-            update={"estimate_time_offset": False, "known_time_offset_s": est.time_offset_s}
+            update={"estimate_time_offset": False, "known_time_offset_s": value}
         )
         method = f"held at the references' rotation-rate correlation with the gyro ({quality})"
         return recipe.model_copy(update={"train": held}), method
