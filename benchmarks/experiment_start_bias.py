@@ -62,32 +62,42 @@ _SIM = {
 }  # fmt: skip
 
 
-def run_variant(name: str, variant: str) -> dict[str, Any]:
-    """One refinement from the truth on case ``name`` under ``variant`` (module docstring)."""
-    from benchmarks.bench_calibration import cases, exact_reference_env, rotation_errors_deg
-    from l2calib.assess.refine import refine
-    from l2calib.interfaces import Extrinsic
+def env_with_imu(case, sim_variant: str, exact: bool = True):
+    """:func:`~benchmarks.bench_calibration.exact_reference_env` with the IMU corrupted as
+    ``sim_variant`` says (a key of ``_SIM``); the IMU model table is restored afterwards."""
+    from benchmarks.bench_calibration import exact_reference_env
     from l2calib.sim import imu_model
-    from l2calib.train.env_build import score_batch
 
-    spec = dict(part.split("=", 1) for part in variant.split(","))
-    base = next(c for c in cases(quick=False) if c.name == name)
-    sim = json.loads(json.dumps(base.sim))
+    sim = json.loads(json.dumps(case.sim))
     model = sim.get("imu", {}).get("model", "vn100")
     saved = imu_model.IMUS[model]
-    change = _SIM[spec.get("sim", "default")]
+    change = _SIM[sim_variant]
     if change is None:
         sim.setdefault("imu", {})["noise"] = False
     else:
         imu_model.IMUS[model] = dataclasses.replace(saved, **change)
+    try:
+        return exact_reference_env(dataclasses.replace(case, sim=sim), exact=exact)
+    finally:
+        imu_model.IMUS[model] = saved
+
+
+def run_variant(name: str, variant: str) -> dict[str, Any]:
+    """One refinement from the truth on case ``name`` under ``variant`` (module docstring)."""
+    from benchmarks.bench_calibration import cases, rotation_errors_deg
+    from l2calib.assess.refine import refine
+    from l2calib.interfaces import Extrinsic
+    from l2calib.train.env_build import score_batch
+
+    spec = dict(part.split("=", 1) for part in variant.split(","))
+    base = next(c for c in cases(quick=False) if c.name == name)
     overrides = [*base.overrides, f"backend.options.start_biases={spec.get('start', 'estimate')}"]
     if "budget" in spec:
         overrides.append(f"selection.budget_s={spec['budget']}")
-    case = dataclasses.replace(base, overrides=overrides, sim=sim)
-    try:
-        env, runs, data, recipe = exact_reference_env(case, exact=spec.get("ref") != "case")
-    finally:
-        imu_model.IMUS[model] = saved
+    case = dataclasses.replace(base, overrides=overrides)
+    env, runs, data, recipe = env_with_imu(
+        case, spec.get("sim", "default"), spec.get("ref") != "case"
+    )
     skip_s = float(spec.get("skip", 0))
     if skip_s > 0:
         _skip_first(env, skip_s)

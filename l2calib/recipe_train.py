@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Annotated, Literal
 
-from pydantic import Field, model_validator
+from pydantic import Field, field_validator, model_validator
 
 from l2calib.config_base import StrictModel
 
@@ -144,10 +144,11 @@ class TrainConfig(StrictModel):
     polish_rounds: int = Field(
         0,
         ge=0,
-        description="after the refinement, Newton steps on a quadratic model of the reward "
-        "fitted from one batch of 73 candidates (99 with the time offset) each, kept only where "
-        "the reward rises (l2calib.assess.polish); follows coupled axes the per-axis refinement "
-        "stops short on. 0: off (opt-in until measured on weakly excited data)",
+        description="after the refinement, rounds of Newton steps on a quadratic model of the "
+        "reward fitted from one batch of 73 candidates (99 with the time offset) plus 3 along "
+        "the step, kept only where the reward rises; a round without gain halves the stencil "
+        "(l2calib.assess.polish); follows coupled axes the per-axis refinement stops short on. "
+        "0: off (opt-in until measured in full calibrations on weakly excited data)",
     )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
@@ -175,6 +176,12 @@ class TrainConfig(StrictModel):
         "the motion counts as planar (l2calib.selection.planar); the simulator's ground vehicle "
         "gives 0.998, its drone 0.83-0.92, hand-held rigs 0.40-0.43",
     )
+
+    @field_validator("hold_vertical_translation", mode="before")
+    @classmethod
+    def _yaml_on_off(cls, value: object) -> object:
+        """YAML 1.1 reads an unquoted ``on`` / ``off`` as a boolean: take it as meant."""
+        return {True: "on", False: "off"}.get(value, value) if isinstance(value, bool) else value
 
     @model_validator(mode="after")
     def _known_offset_is_not_estimated(self) -> TrainConfig:

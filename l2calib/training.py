@@ -455,6 +455,6 @@ def _polish_summary(polished: Any) -> dict[str, Any]:
     return {
         "start_reward": round(polished.start_reward, 6),
         "polished_reward": round(polished.reward, 6),
-        "newton_steps_kept": int(polished.rounds),
+        "rounds_kept": int(polished.rounds),
         "evaluations": int(polished.evaluations),
     }

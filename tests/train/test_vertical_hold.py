@@ -128,3 +128,15 @@ def test_planar_data_trains_with_the_weak_data_settings_unless_the_recipe_sets_t
     cfg, changed = planar_train_settings(mine)
     assert cfg.refine_rounds == 9 and cfg.handover_rotation_sigma_deg is None
     assert set(changed) == {"handover_rotation_sigma_deg"}
+
+
+@pytest.mark.parametrize("text, expected", [("off", "off"), ("on", "on"), ("auto", "auto")])
+def test_unquoted_yaml_on_off_is_read_as_the_setting(tmp_path, text, expected):
+    """YAML 1.1 turns an unquoted on / off into a boolean; the recipe and --set take it as meant."""
+    from l2calib.recipe import load_recipe
+
+    override = [f"train.hold_vertical_translation={text}"]
+    assert load_recipe("simulator", override).train.hold_vertical_translation == expected
+    path = tmp_path / "r.yaml"
+    path.write_text(f"train:\n  hold_vertical_translation: {text}\n")
+    assert load_recipe(path).train.hold_vertical_translation == expected
