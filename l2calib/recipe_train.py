@@ -150,6 +150,14 @@ class TrainConfig(StrictModel):
         "(l2calib.assess.polish); follows coupled axes the per-axis refinement stops short on. "
         "0: off (opt-in until measured in full calibrations on weakly excited data)",
     )
+    polish_first_scale: float = Field(
+        1.0,
+        gt=0,
+        le=1,
+        description="the polish's first stencil as a fraction of 0.5 deg / 2 cm / 1 ms; 0.25 "
+        "continued the ground vehicle's stored calibrations to 0.07-0.74 cm (1 = 1.13-1.54 cm; "
+        "docs/backends.md)",
+    )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
         1,

@@ -365,7 +365,7 @@ def _attempt(
         say(f"polishing the result: Newton steps on the reward (at most {cfg.polish_rounds})")
         polished = polish(
             _Scorer(env, best.time_offset_s), best, cfg.polish_rounds,
-            hold=None if hold is None else hold.apply,
+            hold=None if hold is None else hold.apply, first_scale=cfg.polish_first_scale,
         )  # fmt: skip
         best = polished.extrinsic
     T_mode, offset = best.T_imu_lidar, best.time_offset_s

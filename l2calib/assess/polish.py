@@ -133,7 +133,7 @@ def polish(
         score: ``score(T [N,4,4], offsets [N] | None) -> [N]`` rewards.
         start: The refined extrinsic; its ``time_offset_s`` (if not ``None``) is a 7th axis.
         rounds: At most this many rounds (stencils fitted; each ``P + 3`` candidates).
-        max_steps: Largest move per axis and round, in stencil widths (0.5°, 2 cm, 1 ms).
+        max_steps: Largest move per axis and round, in widths of the current stencil.
         hold: Applied to every candidate's ``T`` (the vertical lever-arm hold), or ``None``.
         first_scale: The first stencil's widths as a fraction of :data:`STEPS`.
     """

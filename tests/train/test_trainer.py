@@ -217,3 +217,18 @@ def test_the_newton_polish_runs_after_the_refinement_and_is_counted(fake_backend
     n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()
     n_refine = result.extra["refine"]["evaluations"]
     assert result.evaluations == 3 * 8 + n_refine + polished["evaluations"] + n_probes
+
+
+def test_the_polish_starts_at_the_recipes_stencil_width(fake_backend_env, monkeypatch):
+    import l2calib.assess.polish as polish_module
+
+    seen, real = [], polish_module.polish
+
+    def spy(*args, **kwargs):
+        seen.append(kwargs.get("first_scale"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(polish_module, "polish", spy)
+    result, _ = _run(_recipe(polish_rounds=2, polish_first_scale=0.25))
+    assert seen == [0.25]
+    assert result.extra["polish"]["evaluations"] == 2 * 102
