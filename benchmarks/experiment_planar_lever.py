@@ -232,9 +232,36 @@ def score_estimates(env, T_gt: torch.Tensor, offset_s: float, case: str) -> list
             {"train_seed": r["train_seed"], "reference": r["reference"], "dt_cm": r["dt_cm"],
              "dr_deg": r["dr_deg"], "reward_truth": round(float(f[0]), 6),
              "reward_estimate": round(float(f[1]), 6),
+             "line_to_truth": _line_to_truth(env, T_true, T_est, float(offs[1]), offset_s),
              "continued": _continue(env, T_true, T_est, float(offs[1]))}
         )  # fmt: skip
     return out
+
+
+def _line_to_truth(env, T_true, T_est, est_offset_s: float, offset_s: float) -> dict[str, Any]:
+    """Rewards on the straight line (geodesic in rotation) from the estimate (0) to the truth (1)
+    and 20 % past it; and each half swapped: the estimate's rotation with the true translation,
+    the true rotation with the estimate's translation (do the errors compensate each other?)."""
+    from l2calib import geometry as geo
+    from l2calib.train.env_build import score_batch
+
+    alphas = np.linspace(0.0, 1.2, 13)
+    dR = geo.so3_log(T_true[:3, :3] @ T_est[:3, :3].T)
+    T = T_est.repeat(len(alphas) + 2, 1, 1).clone()
+    for k, a in enumerate(alphas):
+        T[k, :3, :3] = geo.so3_exp(float(a) * dR) @ T_est[:3, :3]
+        T[k, :3, 3] = T_est[:3, 3] + float(a) * (T_true[:3, 3] - T_est[:3, 3])
+    T[-2, :3, 3] = T_true[:3, 3]
+    T[-1] = T_true
+    T[-1, :3, 3] = T_est[:3, 3]
+    offs = [(1 - a) * est_offset_s + a * offset_s for a in alphas] + [offset_s, offset_s]
+    f = score_batch(env, T, torch.tensor(offs, dtype=torch.float64)).reward.double().numpy()
+    return {
+        "alpha": alphas.round(2).tolist(),
+        "reward": f[:-2].round(5).tolist(),
+        "estimate_rotation_true_translation": round(float(f[-2]), 5),
+        "true_rotation_estimate_translation": round(float(f[-1]), 5),
+    }
 
 
 def _continue(env, T_true: torch.Tensor, T_est: torch.Tensor, offset_s: float) -> dict[str, Any]:
