@@ -157,7 +157,9 @@ def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, lis
             where,
             f"planar, yaw-dominant motion (a ground vehicle?): {motion.describe()}. The lever "
             "arm's vertical component cannot be determined from it: calibrate holds it at "
-            "policy.prior's value (else 0 m, named as not estimated) and searches the rest",
+            "policy.prior's value (else 0 m, named as not estimated), searches the rest and "
+            "trains with the ground-vehicle settings (no hand-over, 6 refinement and 8 Newton "
+            "polish rounds: l2calib.train.vertical_hold.PLANAR_TRAIN)",
             "give policy.prior with the height difference from a drawing (translation_m), or "
             "add a stretch with roll and pitch (ramps, kerbs); whole drives help the rest "
             "(selection.budget_s)",

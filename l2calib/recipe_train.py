@@ -25,6 +25,25 @@ class RayConfig(StrictModel):
     threads_per_actor: int = Field(1, ge=1, description="CPUs (torch threads) each actor uses")
 
 
+class UncertaintyConfig(StrictModel):
+    """After training: per-axis 95 % bounds on the error and when to call an axis undetermined.
+
+    The bounds come from the data around the result (``l2calib.assess.uncertainty``,
+    ``docs/design.md``); an axis whose bound exceeds its limit, or along which the reward is
+    flat, is named as not determined by the data.
+    """
+
+    enabled: bool = Field(True, description="estimate the bounds (73-99 odometry runs)")
+    block_s: float = Field(
+        2.0, gt=0, description="length of the blocks of data the noise is measured on (s)"
+    )
+    rotation_limit_deg: float = Field(0.5, gt=0, description="undetermined beyond this bound")
+    translation_limit_m: float = Field(0.02, gt=0, description="undetermined beyond this bound")
+    time_offset_limit_ms: float = Field(
+        5.0, gt=0, description="the time offset is undetermined beyond this bound (ms)"
+    )
+
+
 class TrainConfig(StrictModel):
     """PPO settings and budgets."""
 
@@ -148,7 +167,8 @@ class TrainConfig(StrictModel):
         "reward fitted from one batch of 73 candidates (99 with the time offset) plus 3 along "
         "the step, kept only where the reward rises; a round without gain halves the stencil "
         "(l2calib.assess.polish); follows coupled axes the per-axis refinement stops short on. "
-        "0: off (opt-in until measured in full calibrations on weakly excited data)",
+        "0: off; on planar motion (a ground vehicle) 8 unless set here (l2calib.train."
+        "vertical_hold.PLANAR_TRAIN)",
     )
     polish_first_scale: float = Field(
         1.0,
@@ -156,7 +176,7 @@ class TrainConfig(StrictModel):
         le=1,
         description="the polish's first stencil as a fraction of 0.5 deg / 2 cm / 1 ms; 0.25 "
         "continued the ground vehicle's stored calibrations to 0.07-0.74 cm (1 = 1.13-1.54 cm; "
-        "docs/backends.md)",
+        "docs/backends.md) and is the planar-motion default",
     )
     refine_rot_step_deg: float = Field(1.0, gt=0, description="first rotation step of refine")
     restarts: int = Field(
@@ -184,6 +204,8 @@ class TrainConfig(StrictModel):
         "the motion counts as planar (l2calib.selection.planar); the simulator's ground vehicle "
         "gives 0.998, its drone 0.83-0.92, hand-held rigs 0.40-0.43",
     )
+
+    uncertainty: UncertaintyConfig = Field(default_factory=UncertaintyConfig)
 
     @field_validator("hold_vertical_translation", mode="before")
     @classmethod

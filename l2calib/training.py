@@ -48,15 +48,61 @@ def offset_start_s(train: Any, hint_s: float | None) -> float | None:
 def undetermined_axes(
     resolution: Any,
     selection: Any | None,
+    axis_uncertainty: Any | None = None,
+    limits: Any | None = None,
     rot_limit_deg: float = 1.0,
     trans_limit_m: float = 0.05,
 ) -> list[str]:
-    """Axes the data could not determine: flat reward along them, or weak excitation."""
-    from l2calib.assess.sensitivity import undetermined
+    """Axes the data could not determine.
 
-    out = undetermined(resolution, rot_limit_deg, trans_limit_m)
-    if selection is not None:
-        out += [f"weakly excited: {w}" for w in selection.weak_axes]
+    With the per-axis uncertainty (:mod:`l2calib.assess.uncertainty`): axes whose 95 % bound
+    exceeds ``limits`` (``train.uncertainty``) or along which the reward is flat, and axes where
+    the resolution probe found a better extrinsic nearby. Without it (``train.uncertainty.
+    enabled: false``): the resolution probe's flat or wide axes and the selection's weakly
+    excited ones, as before.
+    """
+    from l2calib.assess import sensitivity, uncertainty
+
+    if axis_uncertainty is None:
+        out = sensitivity.undetermined(resolution, rot_limit_deg, trans_limit_m)
+        if selection is not None:
+            out += [f"weakly excited: {w}" for w in selection.weak_axes]
+        return out
+    out = uncertainty.undetermined(
+        axis_uncertainty, limits.rotation_limit_deg, limits.translation_limit_m,
+        limits.time_offset_limit_ms / 1000,
+    )  # fmt: skip
+    better = [f"{b}: a nearby extrinsic scores higher (not converged)" for b in resolution.better]
+    return out + better
+
+
+def estimate_axis_uncertainty(env, T_imu_lidar, estimated_offset_s, hold, config):
+    """Per-axis 95 % bounds at the result (:mod:`l2calib.assess.uncertainty`) on the open env.
+
+    Args:
+        env: The open training env (or any scoring env of the same data).
+        T_imu_lidar: ``[4, 4]`` the calibrated extrinsic.
+        estimated_offset_s: The estimated time offset (s), a seventh axis; ``None`` when it was
+            not estimated (a held or known offset is the env's own).
+        hold: The vertical lever-arm hold, or ``None``.
+        config: ``train.uncertainty`` (block length and the limits recorded with the bounds).
+
+    Returns:
+        The :class:`~l2calib.assess.uncertainty.AxisUncertainty` (``evaluations``: odometry
+        runs it took).
+    """
+    from l2calib.assess import uncertainty
+    from l2calib.train.env_build import block_costs
+
+    T, offsets = uncertainty.candidates(T_imu_lidar, estimated_offset_s)
+    costs, scans = block_costs(env, T, offsets, config.block_s)
+    out = uncertainty.estimate(costs, scans, holding=hold is not None)
+    out.evaluations = int(T.shape[0])
+    out.limits = (
+        config.rotation_limit_deg,
+        config.translation_limit_m,
+        config.time_offset_limit_ms / 1000,
+    )
     return out
 
 
@@ -385,6 +431,10 @@ def _attempt(
     if offset is not None:
         say("probing the reward along the time offset (its resolution)")
         offset_res = probe_time_offset(env, T_mode, offset)
+    axis_unc = None
+    if cfg.uncertainty.enabled:
+        say("estimating each axis's uncertainty from the data (95 % bounds)")
+        axis_unc = estimate_axis_uncertainty(env, T_mode, best.time_offset_s, hold, cfg.uncertainty)
     stage_s["probe"] = time.monotonic() - clock
     unc = policy.uncertainty() if hold is None else hold.policy_spread(policy.uncertainty())
     sources = sorted({r.source for r in data.references})
@@ -393,6 +443,7 @@ def _attempt(
         + (refined.evaluations if refined else 0)
         + (polished.evaluations if polished else 0)
         + (probe_evaluations() if offset_res else 0)
+        + (axis_unc.evaluations if axis_unc else 0)
     )  # all on the full data
     return CalibrationResult(
         T_imu_lidar=T_mode.numpy(),
@@ -408,8 +459,9 @@ def _attempt(
         wall_time_s=outcome.wall_s,
         stop_reason=outcome.stop_reason,
         resolution=resolution,
+        axis_uncertainty=axis_unc,
         undetermined=([hold.describe()] if hold is not None else [])
-        + undetermined_axes(resolution, data.selection)
+        + undetermined_axes(resolution, data.selection, axis_unc, cfg.uncertainty)
         + (offset_res.undetermined() if offset_res else []),
         time_offset_resolution=offset_res,
         time_offset_start_s=(start or 0.0) if offset is not None else None,

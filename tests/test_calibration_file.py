@@ -40,6 +40,23 @@ def test_round_trip_and_paste_ready_forms(tmp_path):
     assert unc["undetermined"] == ["rotation about LiDAR y"]
 
 
+def test_the_per_axis_bounds_are_written_in_the_users_units(tmp_path):
+    """95 % bounds: deg / m / s, null where flat or held, with their meaning and what was held."""
+    from l2calib.assess.uncertainty import AxisUncertainty
+
+    bound = np.array([math.radians(0.05), math.radians(0.1), math.inf, 0.004, 0.006, math.inf])
+    zeros = np.zeros(6)
+    flat = ~np.isfinite(bound)
+    unc = AxisUncertainty(bound, zeros, zeros, zeros, flat, 10, 200, 0.1, held=[5])
+    path = write_calibration(tmp_path / "c.yaml", CalibrationResult(_T(), axis_uncertainty=unc))
+    written = yaml.safe_load(path.read_text())["uncertainty"]
+    assert written["bound95_rotation_deg"] == [0.05, 0.1, None]
+    assert written["bound95_translation_m"] == [0.004, 0.006, None]
+    assert "bound95_time_offset_s" not in written  # not estimated
+    assert written["bound95_held"] == ["translation along LiDAR z"]
+    assert "95 %" in written["bound95_meaning"]
+
+
 def test_unreliable_result_warns_above_the_paste_ready_blocks(tmp_path):
     reason = "the odometry and the reference disagree by 63 cm"
     result = CalibrationResult(_T(), status="unreliable", status_reasons=[reason])

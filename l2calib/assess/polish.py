@@ -17,9 +17,10 @@ Measured by ``python -m benchmarks.experiment_polish`` (3 rounds, continuing sto
 ``benchmarks/results/experiments/polish.json``): hand-held OS1-16 with the true trajectory,
 training seeds 0–2, rotation 0.040 / 0.016 / 0.034° → 0.016 / 0.016 / 0.015°, translation
 0.70 / 0.28 / 0.63 → 0.56 / 0.32 / 0.53 cm; the +50 ms time-offset recording 0.24° → 0.14°,
-1.12 → 1.17 cm; +300 evaluations. Opt-in (``train.polish_rounds``, default 0) until weakly
-excited data is measured: there the reward's own peak lies centimetres from the truth, and
-climbing it may not help.
+1.12 → 1.17 cm; +300 evaluations. On planar motion (a ground vehicle) 8 rounds from a quarter
+stencil are the default (:data:`l2calib.train.vertical_hold.PLANAR_TRAIN`: x / y 0.07–0.95 /
+0.66–1.56 cm over three training seeds, against 0.99–2.43 / 0.30–1.01 cm without); elsewhere
+opt-in (``train.polish_rounds``, default 0) until measured in full calibrations.
 """
 
 from __future__ import annotations

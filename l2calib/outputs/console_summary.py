@@ -50,6 +50,20 @@ def print_result(console, result, truth=None) -> None:
     t = result.T_imu_lidar[:3, 3]
     table.add_row("calibrated translation (m)", *(f"{v:+.4f}" for v in t))
     table.add_row("calibrated rotation (deg)", *(f"{v:+.3f}" for v in result.rpy_deg))
+    unc = result.axis_uncertainty
+    if unc is not None:
+
+        def bound(v: float, i: int, text: str) -> str:
+            return "held" if i in unc.held else ("flat" if not np.isfinite(v) else text)
+
+        table.add_row(
+            "95 % bound translation (cm)",
+            *(bound(v, 3 + i, f"±{100 * v:.2f}") for i, v in enumerate(unc.translation_m)),
+        )
+        table.add_row(
+            "95 % bound rotation (deg)",
+            *(bound(v, i, f"±{v:.3f}") for i, v in enumerate(unc.rotation_deg)),
+        )
     if result.resolution is not None:
         res = result.resolution
         table.add_row(
@@ -84,6 +98,8 @@ def print_result(console, result, truth=None) -> None:
     if result.time_offset_s is not None:
         res = result.time_offset_resolution
         how = "" if res is None else f", resolution {_ms(res.resolution_s)}"
+        if unc is not None and unc.time_offset_s is not None:
+            how += f", 95 % bound ±{_ms(unc.time_offset_s)}"
         if (result.time_offset_method or "").startswith("held"):
             how += "; held at the rotation-rate correlation"
         console.print(

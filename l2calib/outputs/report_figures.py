@@ -1,10 +1,11 @@
-"""The report's figures: ``report.png`` (training and resolution) and ``trajectories.png``.
+"""The report's figures: ``report.png`` (training, per-axis uncertainty), ``trajectories.png``.
 
 ``report.png`` has four panels: the reward per iteration; the translation of the policy's mode
 (cm, ±σ, dashed: the truth when known); its rotation as the **error to the final estimate**
 (the rotation vector of ``R_finalᵀ R_iteration`` about the LiDAR axes, deg, so it never jumps
-by 360° the way roll/pitch/yaw do near ±180°); and the per-axis resolution from the probe as
-bars against the limits beyond which an axis is reported undetermined. ``trajectories.png``
+by 360° the way roll/pitch/yaw do near ±180°); and each axis's 95 % bound on the error
+(:mod:`l2calib.assess.uncertainty`; the probe's resolution when the bounds were not estimated)
+as bars against the limits beyond which an axis is reported undetermined. ``trajectories.png``
 draws, for every segment, the LiDAR trajectory from the odometry with the extrinsic before
 (identity or the prior) and after calibration beside the reference (top view).
 """
@@ -85,6 +86,30 @@ def _resolution(ax, resolution: Any | None) -> None:
     )
 
 
+def _bounds(ax, unc: Any) -> None:
+    """Bars: each axis's 95 % bound as a fraction of its limit; flat axes full in red."""
+    rot_deg, trans_m, _ = unc.limits or (0.5, 0.02, 0.005)
+    labels = [f"t{a}" for a in "xyz"] + [f"r{a}" for a in "xyz"]
+    values = [v / trans_m for v in unc.translation_m] + [v / rot_deg for v in unc.rotation_deg]
+    texts = [f"±{100 * v:.2f} cm" for v in unc.translation_m]
+    texts += [f"±{v:.3f}°" for v in unc.rotation_deg]
+    for i, (v, text) in enumerate(zip(values, texts, strict=True)):
+        held, flat = (i in unc.held), not np.isfinite(v)
+        weak = (flat or v > 1.0) and not held
+        ax.barh(i, 1.2 if flat else min(v, 1.2), color="tab:gray" if held else
+                ("tab:red" if weak else "tab:green"))  # fmt: skip
+        label = "held (not estimated)" if held else ("flat: not determined" if flat else text)
+        ax.text(0.02, i, label, va="center", fontsize=8)
+    ax.axvline(1.0, color="k", ls="--", lw=0.8)
+    ax.set_yticks(range(6), labels)
+    ax.invert_yaxis()
+    ax.set_xlim(0, 1.25)
+    ax.set(
+        xlabel=f"95 % bound on the error / limit ({100 * trans_m:g} cm, {rot_deg:g}°)",
+        title="Per-axis uncertainty (shorter is better; red: not determined)",
+    )
+
+
 def plot_report(
     path: Path,
     history: list[Any],
@@ -119,7 +144,10 @@ def plot_report(
     _bands(ax[1, 0], it, r, rs, gt_r, ("about x", "about y", "about z"))
     title = "Rotation of the mode: error to the final estimate (±σ; dashed: truth)"
     ax[1, 0].set(xlabel="iteration", ylabel="deg", title=title)
-    _resolution(ax[1, 1], result.resolution)
+    if getattr(result, "axis_uncertainty", None) is not None:
+        _bounds(ax[1, 1], result.axis_uncertainty)
+    else:
+        _resolution(ax[1, 1], result.resolution)
     fig.suptitle(
         f"l2calib: {result.evaluations} odometry evaluations, {result.iterations} iterations, "
         f"{result.wall_time_s:.0f} s — {result.stop_reason}"

@@ -13,6 +13,7 @@ actors scored).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from typing import Any
 
@@ -257,6 +258,44 @@ class CalibrationEnv(ScoringEnv):
             count = torch.zeros(0, dtype=torch.int64)
             return RewardBreakdown(none, none.clone(), none.clone(), count), count.clone()
         return self.score_candidates(T, offsets)
+
+    def block_cost_share(
+        self,
+        T_imu_lidar: torch.Tensor,
+        time_offset_s: torch.Tensor | None,
+        num_workers: int,
+        block_s: float,
+    ) -> tuple[np.ndarray, int]:
+        """The reward's pose cost per block of data for this worker's share of the candidates.
+
+        The cost of a scan is ``e_t / 4 + e_r / π²`` (m, rad: the paper reward's terms before
+        their means and square roots; the rotation term only against pose references), summed
+        over blocks of ``block_s`` seconds of each segment
+        (:func:`l2calib.assess.uncertainty.block_index`). For the uncertainty estimate.
+
+        Returns:
+            ``[k, B]`` costs (B blocks over all segments, in order) and the scans counted.
+        """
+        from l2calib.assess.uncertainty import block_index
+
+        share = slice(self.worker_index, None, num_workers)
+        T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
+        if self.hold is not None:
+            T = self.hold.apply(T)
+        blocks, scans = [], 0
+        outputs = self.backend.evaluate(T, self._offsets(T, offsets)) if T.shape[0] else []
+        for i, o in enumerate(outputs):
+            T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
+            valid = o.valid & ok[None]
+            e_t, e_r = aligned_errors(T_ref, o.T_world_lidar, valid, self.align)
+            use_r = float(self.references[i].constrains == "pose")
+            cost = torch.where(valid, e_t / 4 + use_r * e_r / math.pi**2, 0.0).numpy()
+            b = block_index(o.stamps_ns * 1e-9, block_s)
+            blocks += [cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
+            scans += int(ok.sum())
+        if not blocks:
+            return np.zeros((T.shape[0], 0)), scans
+        return np.stack(blocks, 1), scans
 
     def trajectory_share(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int

@@ -140,6 +140,30 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
     return merge_shares(parts, T_imu_lidar.shape[0])
 
 
+def block_costs(
+    env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, block_s: float
+) -> tuple[np.ndarray, int]:
+    """The pose cost of ``N`` candidates per block of data, spread over the env's workers.
+
+    See :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`.
+
+    Returns:
+        ``[N, B]`` costs in candidate order and the scans counted.
+    """
+    from l2calib.train.env import ScoringEnv
+
+    if isinstance(env, ScoringEnv):  # in this process (or the driver of Ray actors)
+        return env.block_cost_share(T_imu_lidar, time_offset_s, 1, block_s)
+    n = env.num_workers
+    shares = _started(env).block_cost_share(T_imu_lidar, time_offset_s, n, block_s)
+    width = max(c.shape[1] for c, _ in shares)
+    out = np.zeros((T_imu_lidar.shape[0], width))
+    for i, (costs, _) in enumerate(shares):
+        if costs.shape[0]:
+            out[i::n] = costs
+    return out, max(scans for _, scans in shares)
+
+
 def trajectory_previews(
     env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
 ) -> list[dict[str, np.ndarray | str]]:

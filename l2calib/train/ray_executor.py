@@ -25,6 +25,7 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
 import torch
 
 from l2calib.errors import ConfigError
@@ -115,6 +116,11 @@ class ScoringActor:
         self._use(fraction)
         return self.env.trajectory_share(T_imu_lidar, time_offset_s, 1)
 
+    def block_costs(self, T_imu_lidar, time_offset_s, fraction: float, block_s: float):
+        """Pose cost of the candidates per block of data (the uncertainty estimate)."""
+        self._use(fraction)
+        return self.env.block_cost_share(T_imu_lidar, time_offset_s, 1, block_s)
+
     def pid(self) -> int:
         """The actor's process id (tests kill it to check the restart)."""
         return os.getpid()
@@ -193,6 +199,23 @@ class RayScoringEnv(ScoringEnv):
         """The report's trajectories of a few candidates, run on the first actor."""
         future = self.actors[0].trajectories.remote(T_imu_lidar, time_offset_s, self.fraction)
         return self._get([future])[0]
+
+    def block_cost_share(self, T_imu_lidar, time_offset_s, num_workers: int, block_s: float):
+        """``[N, B]`` pose costs per block of data, the candidates split over the actors."""
+        n = min(self.num_actors, T_imu_lidar.shape[0])
+        futures = []
+        for i in range(n):
+            offsets = None if time_offset_s is None else time_offset_s[i::n]
+            futures.append(
+                self.actors[i].block_costs.remote(
+                    T_imu_lidar[i::n], offsets, self.fraction, block_s
+                )
+            )
+        parts = self._get(futures)
+        out = np.zeros((T_imu_lidar.shape[0], parts[0][0].shape[1]))
+        for i, (costs, _) in enumerate(parts):
+            out[i::n] = costs
+        return out, parts[0][1]
 
     def terminate(self) -> None:
         """Kills the actors at once (an interrupted run: they may be mid-batch)."""

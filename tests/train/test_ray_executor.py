@@ -115,7 +115,7 @@ def test_a_killed_actor_is_restarted_and_its_candidates_rescored(ray_instance, f
 
 def test_batches_of_any_size_score_alike_on_actors(ray_instance, fake_backend_env):
     """The refinement and the probe send batches of other sizes (fewer than the actors too)."""
-    from l2calib.train.env_build import make_training_env, score_batch
+    from l2calib.train.env_build import block_costs, make_training_env, score_batch
 
     data = _data()
     local = make_training_env(_recipe(workers=1), data.segments, data.references)
@@ -124,6 +124,10 @@ def test_batches_of_any_size_score_alike_on_actors(ray_instance, fake_backend_en
         for n in (1, 5):
             T = probe(torch.eye(4, dtype=torch.float64))[:n]
             assert torch.equal(score_batch(remote, T).reward, score_batch(local, T).reward)
+            costs, scans = block_costs(remote, T, None, 2.0)  # the uncertainty's batch
+            expected, expected_scans = block_costs(local, T, None, 2.0)
+            assert costs.shape == expected.shape and scans == expected_scans
+            assert (costs == expected).all()
     finally:
         remote.close()
 

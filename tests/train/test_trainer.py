@@ -1,7 +1,9 @@
 from __future__ import annotations
 
+import math
 import shutil
 
+import numpy as np
 import pytest
 import torch
 from fakes import reference, tiny_sequence
@@ -47,8 +49,11 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     assert result.time_offset_s is not None  # estimated by default: a 7th refined axis
     assert 1 + 12 * 14 <= n_refine <= 1 + 12 * 15  # default 12 rounds
     n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()  # + the offset's probe
-    assert result.evaluations == 3 * 8 + n_refine + n_probes
+    n_bounds = result.axis_uncertainty.evaluations  # the uncertainty's stencil, with the offset
+    assert n_bounds == 99
+    assert result.evaluations == 3 * 8 + n_refine + n_probes + n_bounds
     assert len(result.resolution.rotation_deg) == 3
+    assert len(result.axis_uncertainty.bound95) == 7 and result.axis_uncertainty.blocks >= 2
     assert result.reference_agreement["translation_m"] >= 0  # odometry vs reference at the result
     assert (tmp_path / "checkpoint.pt").is_file()
     assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
@@ -83,7 +88,7 @@ def test_the_reports_trajectories_come_from_the_open_training_env(fake_backend_e
 @pytest.mark.parametrize("n", [1, 5, 12])
 def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     from l2calib import geometry as geo
-    from l2calib.train.env_build import make_training_env, score_batch
+    from l2calib.train.env_build import block_costs, make_training_env, score_batch
 
     data = _data()
     recipe = _recipe(workers=2)
@@ -94,8 +99,16 @@ def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     try:
         expected = score_batch(local, T)
         got = score_batch(workers, T)  # split over 2 processes, any n (fewer than workers too)
+        costs, scans = block_costs(workers, T, None, 2.0)  # the uncertainty's batch, likewise
+        costs_local, scans_local = block_costs(local, T, None, 2.0)
     finally:
         workers.close()
+    # per-block costs: the same candidates in the same order, summing to the reward's errors
+    assert costs.shape == costs_local.shape and costs.shape[0] == n and costs.shape[1] >= 2
+    np.testing.assert_allclose(costs, costs_local)
+    assert scans == scans_local
+    pooled = got.num_poses * (got.mean_e_t / 4 + got.mean_e_r / math.pi**2)
+    np.testing.assert_allclose(costs.sum(1), pooled.numpy(), rtol=1e-9)
     assert got.reward.shape == (n,)
     assert torch.allclose(got.reward, expected.reward)
     assert torch.allclose(got.mean_e_t, expected.mean_e_t)
@@ -215,6 +228,7 @@ def test_the_newton_polish_runs_after_the_refinement_and_is_counted(fake_backend
     assert polished["start_reward"] >= result.extra["refine"]["refined_reward"] - 1e-12
     assert polished["evaluations"] == 2 * 102  # 99 stencil candidates + 3 along the step, per round
     n_probes = len(probe(result.T_imu_lidar)) + probe_evaluations()
+    n_probes += result.axis_uncertainty.evaluations
     n_refine = result.extra["refine"]["evaluations"]
     assert result.evaluations == 3 * 8 + n_refine + polished["evaluations"] + n_probes
 

@@ -123,11 +123,15 @@ def test_planar_data_trains_with_the_weak_data_settings_unless_the_recipe_sets_t
 
     cfg, changed = planar_train_settings(TrainConfig())
     assert cfg.handover_rotation_sigma_deg is None and cfg.refine_rounds == 6
-    assert set(changed) == {"handover_rotation_sigma_deg", "refine_rounds"}
-    mine = TrainConfig.model_validate({"refine_rounds": 9})
+    assert cfg.polish_rounds == 8 and cfg.polish_first_scale == 0.25
+    assert set(changed) == {
+        "handover_rotation_sigma_deg", "refine_rounds", "polish_rounds", "polish_first_scale"
+    }  # fmt: skip
+    mine = TrainConfig.model_validate({"refine_rounds": 9, "polish_rounds": 0})
     cfg, changed = planar_train_settings(mine)
     assert cfg.refine_rounds == 9 and cfg.handover_rotation_sigma_deg is None
-    assert set(changed) == {"handover_rotation_sigma_deg"}
+    assert cfg.polish_rounds == 0  # the user's "off" stays off
+    assert set(changed) == {"handover_rotation_sigma_deg", "polish_first_scale"}
 
 
 @pytest.mark.parametrize("text, expected", [("off", "off"), ("on", "on"), ("auto", "auto")])

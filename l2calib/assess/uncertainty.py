@@ -1,0 +1,196 @@
+"""Per-axis uncertainty of the calibrated extrinsic: a 95 % bound per LiDAR axis, from the data.
+
+The resolution probe (:mod:`l2calib.assess.sensitivity`) says how far one must move along an
+axis before the reward drops by a fixed fraction; that is a property of the reward's shape, not
+of the error, and it was 5–10× wider than the true errors (issue 25). This module estimates the
+error itself. Around the result ``θ̂`` the odometry runs on the Newton polish's stencil (centre,
+± each axis, ±± each pair: 73 candidates, 99 with the time offset; :func:`l2calib.assess.polish.
+stencil`), and the reward's pose errors are summed per scan into a cost
+``C(θ) = Σ_k c_k(θ)``, ``c_k = e_t,k / 4 + e_r,k / π²`` (m, rad: the paper reward's terms before
+their means and square roots), and per block of :data:`BLOCK_S` seconds of each segment. With
+the Hessian ``H`` of ``C`` and each block's gradient ``g_b`` (central differences), the bound
+on axis ``i`` is
+
+    bound95_i = |step_i| + sqrt( (t₉₇.₅,B−1 · σ_noise,i)² + σ_misfit,i² )
+
+* ``σ_noise``: the data's noise, a block sandwich ``H⁻¹ M H⁻¹`` with
+  ``M = B/(B−1) Σ (g_b − ḡ)(g_b − ḡ)ᵀ`` — how far the minimum would move on other data like
+  these, with the errors' correlation within a block kept (a Student-t quantile: few blocks);
+* ``step``: the Newton step ``−H⁻¹ Σ g_b`` — how far the cost's own minimum lies from the result
+  (where the search stopped). It is a known displacement, not a random one, so it adds to the
+  rest rather than in quadrature;
+* ``σ_misfit``: ``sqrt(2 C(θ̂)/S · (H⁻¹)_ii)`` over ``S`` scans — the standard error of a
+  least-squares fit whose per-scan residuals ``sqrt(c_k)`` were independent with the size
+  observed. A bias every block shares (the odometry's own model error, a reference's drift)
+  moves the minimum of every block alike, which the sandwich cannot see; this term grows with
+  how badly the best extrinsic still fits.
+
+Directions along which ``C`` does not curve up (relative eigenvalue of ``H`` in stencil units
+below :data:`FLAT_RTOL`, or negative) carry no information: an axis that lies mostly in them is
+**flat** and gets an infinite bound. Measured against the true error on every stored benchmark
+calibration by ``python -m benchmarks.bench_uncertainty`` (``docs/design.md``).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from l2calib.assess.polish import STEPS, derivatives, moved, stencil
+
+__all__ = ["BLOCK_S", "AxisUncertainty", "candidates", "estimate", "block_index", "undetermined"]
+
+#: Length of the blocks whose gradients measure the data's noise (s).
+BLOCK_S = 2.0
+#: Relative eigenvalue of the stencil-scaled Hessian below which a direction counts as flat.
+FLAT_RTOL = 1e-4
+#: Axis names in the order of the stencil's axes.
+AXIS_NAMES = (
+    "rotation about LiDAR x", "rotation about LiDAR y", "rotation about LiDAR z",
+    "translation along LiDAR x", "translation along LiDAR y", "translation along LiDAR z",
+    "time offset",
+)  # fmt: skip
+#: What motion determines each axis (rotations of the rig about the LiDAR's axes).
+REMEDY = (
+    "turns about the LiDAR's y and z axes", "turns about the LiDAR's x and z axes",
+    "turns about the LiDAR's x and y axes", "rotation about the LiDAR's y and z axes",
+    "rotation about the LiDAR's x and z axes", "rotation about the LiDAR's x and y axes",
+    "faster rotations (a quick swing or turn)",
+)  # fmt: skip
+
+
+@dataclass
+class AxisUncertainty:
+    """Per-axis 95 % bounds on the error of the calibration (``inf``: flat, not determined).
+
+    Axes: rotation about LiDAR x, y, z (rad), translation along LiDAR x, y, z (m), and the time
+    offset (s) when it was estimated. Every array is ``[n]`` in that order and those units.
+
+    Attributes:
+        bound95: The 95 % bound (module docstring).
+        noise95: Its data-noise part (``t · σ_noise``).
+        step: Distance to the cost's own minimum along each axis (signed).
+        misfit: Its model-misfit part (``σ_misfit``).
+        flat: Axes along which the cost does not curve up.
+        blocks: Blocks of data the noise was measured on; ``scans``: scans in the cost.
+        cost: ``C(θ̂)``, the summed pose cost at the result.
+        evaluations: Odometry runs it took (set by the caller).
+        limits: Rotation (deg), translation (m) and time-offset (s) bounds beyond which an
+            axis is undetermined, as the caller judged it (``train.uncertainty``), or ``None``.
+        held: Translation axes held rather than estimated (the ground vehicle's vertical lever
+            arm; flat by construction, ``inf`` bound, not judged by :func:`undetermined`).
+    """
+
+    bound95: np.ndarray
+    noise95: np.ndarray
+    step: np.ndarray
+    misfit: np.ndarray
+    flat: np.ndarray
+    blocks: int
+    scans: int
+    cost: float
+    held: list[int] = field(default_factory=list)
+    evaluations: int = 0
+    limits: tuple[float, float, float] | None = None
+
+    @property
+    def rotation_deg(self) -> list[float]:
+        """Bounds about LiDAR x, y, z (deg)."""
+        return [math.degrees(float(v)) for v in self.bound95[:3]]
+
+    @property
+    def translation_m(self) -> list[float]:
+        """Bounds along LiDAR x, y, z (m)."""
+        return [float(v) for v in self.bound95[3:6]]
+
+    @property
+    def time_offset_s(self) -> float | None:
+        """Bound on the time offset (s), ``None`` when it was not estimated."""
+        return float(self.bound95[6]) if len(self.bound95) > 6 else None
+
+
+def candidates(
+    T_imu_lidar: torch.Tensor, time_offset_s: float | None
+) -> tuple[torch.Tensor, torch.Tensor | None]:
+    """The stencil around the result: ``[P, 4, 4]`` extrinsics and ``[P]`` offsets (s) or None.
+
+    Six axes, or seven with the time offset when ``time_offset_s`` is not ``None``.
+    """
+    n = 6 if time_offset_s is None else 7
+    d = stencil(n)
+    T = moved(torch.as_tensor(T_imu_lidar, dtype=torch.float64), d)
+    if time_offset_s is None:
+        return T, None
+    return T, torch.as_tensor(time_offset_s + d[:, 6], dtype=torch.float64)
+
+
+def block_index(stamps_s: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
+    """Block of each scan of one segment (``[N]`` ints from 0): ``block_s`` from the first scan.
+
+    A short last block (under half the first's scans) joins the one before.
+    """
+    t = np.asarray(stamps_s, dtype=np.float64)
+    if t.size == 0:
+        return np.zeros(0, dtype=int)
+    b = np.floor((t - t[0]) / block_s).astype(int)
+    last = int(b.max())
+    if last > 0 and (b == last).sum() < (b == 0).sum() / 2:
+        b[b == last] = last - 1
+    return b
+
+
+def estimate(block_costs: np.ndarray, scans: int, holding: bool = False) -> AxisUncertainty:
+    """The per-axis bounds from the stencil's block costs (module docstring).
+
+    Args:
+        block_costs: ``[P, B]`` cost of each :func:`candidates` candidate on each block.
+        scans: Scans that entered the cost (``S``).
+        holding: The candidates' vertical lever arm was held (a ground vehicle): translation
+            axes that come out flat are the held one(s), listed in ``held``, not judged.
+    """
+    from scipy import stats
+
+    C = np.asarray(block_costs, dtype=np.float64)
+    P, B = C.shape
+    n = 6 if P == len(stencil(6)) else 7
+    g, H = derivatives(C, n)
+    h = np.array(STEPS[:n])
+    values, vectors = np.linalg.eigh(H * np.outer(h, h))  # stencil units: axes compare
+    keep = values > FLAT_RTOL * max(float(values.max()), 1e-300)
+    flat = (vectors[:, keep] ** 2).sum(1) < 0.5
+    Hi = (vectors[:, keep] / values[keep]) @ vectors[:, keep].T * np.outer(h, h)
+    gc = g - g.mean(1, keepdims=True)
+    noise_cov = Hi @ (B / max(B - 1, 1) * gc @ gc.T) @ Hi
+    q = float(stats.t.ppf(0.975, max(B - 1, 1)))
+    noise95 = q * np.sqrt(np.clip(np.diag(noise_cov), 0, None))
+    step = -Hi @ g.sum(1)
+    cost = float(C[0].sum())
+    misfit = np.sqrt(2 * cost / max(scans, 1) * np.clip(np.diag(Hi), 0, None))
+    bound = np.abs(step) + np.sqrt(noise95**2 + misfit**2)
+    bound[flat] = np.inf
+    held = [i for i in (3, 4, 5) if holding and flat[i]]
+    return AxisUncertainty(bound, noise95, step, misfit, flat, B, int(scans), cost, held)
+
+
+def undetermined(
+    unc: AxisUncertainty, rot_limit_deg: float, trans_limit_m: float, offset_limit_s: float
+) -> list[str]:
+    """Axes whose 95 % bound exceeds its limit or whose cost is flat, with the motion to fix it."""
+    limits = [math.radians(rot_limit_deg)] * 3 + [trans_limit_m] * 3 + [offset_limit_s]
+    out = []
+    for i, b in enumerate(unc.bound95):
+        if i in unc.held or not (unc.flat[i] or b > limits[i]):
+            continue
+        if unc.flat[i]:
+            size = "the reward is flat along it"
+        elif i < 3:
+            size = f"±{math.degrees(b):.2f} deg at 95 % (limit {rot_limit_deg:g})"
+        elif i < 6:
+            size = f"±{100 * b:.1f} cm at 95 % (limit {100 * trans_limit_m:g})"
+        else:
+            size = f"±{1000 * b:.1f} ms at 95 % (limit {1000 * offset_limit_s:g})"
+        out.append(f"{AXIS_NAMES[i]}: {size}; {REMEDY[i]} would determine it")
+    return out
