@@ -9,6 +9,7 @@ from __future__ import annotations
 import pytest
 import yaml
 
+from l2calib.assess.polish import stencil
 from l2calib.assess.sensitivity import probe
 from l2calib.assess.time_offset_probe import probe_evaluations
 from l2calib.recipe import builtin_recipes, load_recipe
@@ -83,7 +84,10 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     held = timed and out["time_offset"]["method"].startswith("held")
     axes = 7 if timed and not held else 6
     assert 1 + 2 * axes <= n_refine <= 2 + 2 * axes
-    assert result.evaluations == 2 * 8 + n_refine + n_probe + (probe_evaluations() if timed else 0)
+    n_bounds = len(stencil(axes))  # the per-axis uncertainty's stencil (73, 99 with the offset)
+    assert result.axis_uncertainty.evaluations == n_bounds
+    n_probe += n_bounds + (probe_evaluations() if timed else 0)
+    assert result.evaluations == 2 * 8 + n_refine + n_probe
     assert out["refine"]["refined_reward"] >= out["refine"]["policy_mode_reward"]
     assert len(out["uncertainty"]["resolution_rotation_deg"]) == 3
     assert len(out["T_imu_lidar"]) == 4
