@@ -80,8 +80,8 @@ class AxisUncertainty:
         evaluations: Odometry runs it took (set by the caller).
         limits: Rotation (deg), translation (m) and time-offset (s) bounds beyond which an
             axis is undetermined, as the caller judged it (``train.uncertainty``), or ``None``.
-        held: Translation axes held rather than estimated (the ground vehicle's vertical lever
-            arm; flat by construction, ``inf`` bound, not judged by :func:`undetermined`).
+        held: The translation axis held rather than estimated (the ground vehicle's vertical
+            lever arm): left out of the fit, ``inf`` bound, not judged by :func:`undetermined`.
     """
 
     bound95: np.ndarray
@@ -142,22 +142,26 @@ def block_index(stamps_s: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
     return b
 
 
-def estimate(block_costs: np.ndarray, scans: int, holding: bool = False) -> AxisUncertainty:
+def estimate(block_costs: np.ndarray, scans: int, held_axis: int | None = None) -> AxisUncertainty:
     """The per-axis bounds from the stencil's block costs (module docstring).
 
     Args:
         block_costs: ``[P, B]`` cost of each :func:`candidates` candidate on each block.
         scans: Scans that entered the cost (``S``).
-        holding: The candidates' vertical lever arm was held (a ground vehicle): translation
-            axes that come out flat are the held one(s), listed in ``held``, not judged.
+        held_axis: The translation axis (3, 4 or 5) held rather than estimated (the ground
+            vehicle's vertical lever arm), or ``None``. It is left out of the fit (its moves are
+            undone by the hold, up to a tilt's leak) and reported with an infinite bound, in
+            ``held``, not judged.
     """
     from scipy import stats
 
     C = np.asarray(block_costs, dtype=np.float64)
     P, B = C.shape
     n = 6 if P == len(stencil(6)) else 7
-    g, H = derivatives(C, n)
-    h = np.array(STEPS[:n])
+    g_all, H_all = derivatives(C, n)
+    keep_axes = [i for i in range(n) if i != held_axis]
+    g, H = g_all[keep_axes], H_all[np.ix_(keep_axes, keep_axes)]
+    h = np.array(STEPS[:n])[keep_axes]
     values, vectors = np.linalg.eigh(H * np.outer(h, h))  # stencil units: axes compare
     keep = values > FLAT_RTOL * max(float(values.max()), 1e-300)
     flat = (vectors[:, keep] ** 2).sum(1) < 0.5
@@ -165,13 +169,20 @@ def estimate(block_costs: np.ndarray, scans: int, holding: bool = False) -> Axis
     gc = g - g.mean(1, keepdims=True)
     noise_cov = Hi @ (B / max(B - 1, 1) * gc @ gc.T) @ Hi
     q = float(stats.t.ppf(0.975, max(B - 1, 1)))
-    noise95 = q * np.sqrt(np.clip(np.diag(noise_cov), 0, None))
-    step = -Hi @ g.sum(1)
     cost = float(C[0].sum())
-    misfit = np.sqrt(2 * cost / max(scans, 1) * np.clip(np.diag(Hi), 0, None))
+
+    def full(sub: np.ndarray, fill: float) -> np.ndarray:
+        out = np.full(n, fill, dtype=sub.dtype)
+        out[keep_axes] = sub
+        return out
+
+    noise95 = full(q * np.sqrt(np.clip(np.diag(noise_cov), 0, None)), 0.0)
+    step = full(-Hi @ g.sum(1), 0.0)
+    misfit = full(np.sqrt(2 * cost / max(scans, 1) * np.clip(np.diag(Hi), 0, None)), 0.0)
+    flat = full(flat, True)
     bound = np.abs(step) + np.sqrt(noise95**2 + misfit**2)
     bound[flat] = np.inf
-    held = [i for i in (3, 4, 5) if holding and flat[i]]
+    held = [] if held_axis is None else [held_axis]
     return AxisUncertainty(bound, noise95, step, misfit, flat, B, int(scans), cost, held)
 
 
