@@ -46,22 +46,11 @@ RESULTS = Path(__file__).parent / "results" / "experiments" / "uncertainty_sandw
 
 
 def block_costs(env, T: torch.Tensor, offsets: torch.Tensor, block_s: float) -> np.ndarray:
-    """``[K, B]`` cost of each candidate on each block of every segment (module docstring)."""
-    from l2calib.reward import aligned_errors
+    """``[K, B]`` cost of each candidate on each block of every segment (module docstring).
 
-    costs = []
-    for i, o in enumerate(env.backend.evaluate(T, offsets)):
-        T_ref, ok = env._reference_at(i, o.segment, o.stamps_ns)
-        valid = o.valid & ok[None]
-        e_t, e_r = aligned_errors(T_ref, o.T_world_lidar, valid, env.align)
-        c = (e_t / 4 + e_r / math.pi**2) * valid
-        block = np.floor((o.stamps_ns - o.stamps_ns[0]) * 1e-9 / block_s).astype(int)
-        last = block.max()
-        if last > 0 and (block == last).sum() < (block == 0).sum() / 2:
-            block[block == last] = last - 1  # a short last block joins the one before
-        for b in range(block.max() + 1):
-            costs.append(c[:, torch.from_numpy(block == b)].sum(1))
-    return torch.stack(costs, 1).numpy()
+    The pipeline's own per-block cost (:meth:`l2calib.train.env.CalibrationEnv.block_cost_share`).
+    """
+    return env.block_cost_share(T, offsets, 1, block_s)[0]
 
 
 def sandwich(C: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
