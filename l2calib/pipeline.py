@@ -66,8 +66,15 @@ def read_sequences(recipe: Recipe, bags: Sequence[Path], progress: bool = False)
     return open_sequences([Path(b) for b in bags], recipe.data, progress=progress)
 
 
-def select_segments(recipe: Recipe, sequences: Sequence[DataSequence]):
+def select_segments(
+    recipe: Recipe,
+    sequences: Sequence[DataSequence],
+    note: Callable[[str], None] | None = None,
+):
     """Segments to calibrate on: the selection's windows, or every sequence whole.
+
+    On planar, yaw-dominant motion (a ground vehicle) the selection keeps more data in longer
+    windows (:func:`l2calib.selection.planar.planar_selection`; ``note`` is told so).
 
     Raises:
         DataError: no window is eligible (the message names the gaps, dropped scans and still
@@ -80,8 +87,14 @@ def select_segments(recipe: Recipe, sequences: Sequence[DataSequence]):
         check_imu_gaps_whole(sequences)
         return [seq.segment() for seq in sequences], None
     from l2calib.selection.greedy import select_windows
+    from l2calib.selection.planar import planar_selection
 
-    selection = select_windows(sequences, recipe.selection)
+    config, why = planar_selection(
+        recipe.selection, recipe.train.planar_min_yaw_share, [seq.imu for seq in sequences]
+    )
+    if why is not None and note is not None:
+        note(why)
+    selection = select_windows(sequences, config)
     if not selection.chosen:
         window = selection.config.window_s
         raise DataError(
@@ -198,8 +211,9 @@ def select_data(
         say("reading recordings")
         sequences = read_sequences(recipe, bags or [])
     say("selecting informative data")
-    segments, selection = select_segments(recipe, sequences)
-    return PreparedData(list(sequences), segments, [], selection)
+    notes: list[str] = []
+    segments, selection = select_segments(recipe, sequences, notes.append)
+    return PreparedData(list(sequences), segments, [], selection, notes)
 
 
 def add_references(

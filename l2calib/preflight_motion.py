@@ -137,7 +137,7 @@ def motion_check(
 
 def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, list[Issue]]:
     """The overlap's vertical rotation share, and a note when the motion is planar."""
-    from l2calib.recipe import TrainConfig
+    from l2calib.recipe import SelectionConfig, TrainConfig
     from l2calib.selection.planar import planar_motion
 
     keep = (samples.stamps_ns >= seq.start_ns) & (samples.stamps_ns <= seq.end_ns)
@@ -149,6 +149,8 @@ def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, lis
     if motion.turning_samples == 0:
         return None, []
     share = TrainConfig.model_fields["planar_min_yaw_share"].default
+    budget = SelectionConfig.model_fields["planar_budget_s"].default
+    window = SelectionConfig.model_fields["planar_window_s"].default
     if not motion.planar(share):
         return motion.yaw_share, []
     return motion.yaw_share, [
@@ -159,9 +161,11 @@ def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, lis
             "arm's vertical component cannot be determined from it: calibrate holds it at "
             "policy.prior's value (else 0 m, named as not estimated), searches the rest and "
             "trains with the ground-vehicle settings (no hand-over, 6 refinement and 8 Newton "
-            "polish rounds: l2calib.train.vertical_hold.PLANAR_TRAIN)",
+            "polish rounds: l2calib.train.vertical_hold.PLANAR_TRAIN); the selection keeps up "
+            f"to selection.planar_budget_s ({budget:g} s by default) of the drive in windows of "
+            f"at least {window:g} s",
             "give policy.prior with the height difference from a drawing (translation_m), or "
-            "add a stretch with roll and pitch (ramps, kerbs); whole drives help the rest "
-            "(selection.budget_s)",
+            "add a stretch with roll and pitch (ramps, kerbs); longer drives with more turns "
+            "help the rest (raise selection.planar_budget_s)",
         )
     ]

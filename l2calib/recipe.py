@@ -67,6 +67,17 @@ class SelectionConfig(StrictModel):
     window_s: float = Field(10.0, gt=0, description="window length (s)")
     step_s: float = Field(1.0, gt=0, description="stride between windows (s)")
     budget_s: float = Field(30.0, gt=0, description="total length of the selection (s)")
+    planar_budget_s: float | None = Field(
+        60.0,
+        gt=0,
+        description="on planar, yaw-dominant motion (a ground vehicle: train.planar_min_yaw_"
+        "share) the selection keeps at least this much (s; the whole drive when shorter): a "
+        "drive's turns are few, and they are what determines the horizontal lever arm; null: "
+        "budget_s as on any data",
+    )
+    planar_window_s: float = Field(
+        10.0, gt=0, description="shortest window on planar motion (s): long enough for a turn"
+    )
     min_gyro_rad_s: float = Field(
         0.2, gt=0, description="per-axis RMS angular rate below which an axis is weak (rad/s)"
     )

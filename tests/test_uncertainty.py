@@ -115,6 +115,10 @@ def test_blocks_split_each_segment_and_a_short_tail_joins():
     assert b.max() == 2 and (b == 2).sum() == 26
     assert unc.block_index(np.arange(71) / 10.0, 2.0).max() == 3  # 1 s tail: a block
     assert unc.block_index(np.array([]), 2.0).size == 0
+    # A 4 s gap in the scans leaves no empty block (an empty block would count as a zero
+    # gradient in the noise estimate).
+    gap = unc.block_index(np.r_[np.arange(40) / 10.0, 8.0 + np.arange(20) / 10.0], 2.0)
+    assert np.array_equal(np.unique(gap), [0, 1, 2]) and (gap == 2).sum() == 20
 
 
 @pytest.mark.parametrize("n", [6, 7])

@@ -130,12 +130,13 @@ def candidates(
 def block_index(stamps_s: np.ndarray, block_s: float = BLOCK_S) -> np.ndarray:
     """Block of each scan of one segment (``[N]`` ints from 0): ``block_s`` from the first scan.
 
-    A short last block (under half the first's scans) joins the one before.
+    A short last block (under half the first's scans) joins the one before; blocks a gap in
+    the scans left empty are not counted (the numbers stay consecutive).
     """
     t = np.asarray(stamps_s, dtype=np.float64)
     if t.size == 0:
         return np.zeros(0, dtype=int)
-    b = np.floor((t - t[0]) / block_s).astype(int)
+    b = np.unique(np.floor((t - t[0]) / block_s).astype(int), return_inverse=True)[1].ravel()
     last = int(b.max())
     if last > 0 and (b == last).sum() < (b == 0).sum() / 2:
         b[b == last] = last - 1

@@ -53,7 +53,7 @@ def reference(
     rec = load_recipe(recipe, [*set_, *(["selection.enabled=false"] if all_ else [])])
     truth = read_trajectory(compare, body_frame="lidar") if compare is not None else None
     sequences = read_sequences(rec, bag, progress=console.is_terminal)
-    segments, _ = select_segments(rec, sequences)
+    segments, _ = select_segments(rec, sequences, lambda m: console.print(f"[yellow]note[/]: {m}"))
     paths = output_paths(out, len(segments))
     existing = [str(p) for p in paths if p.exists()]
     if existing and not force:  # nothing a user made is overwritten unasked

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -97,3 +98,38 @@ def planar_motion(imus: Iterable[ImuSamples]) -> PlanarMotion:
         turning_samples=int(len(turning)),
         tilt_deg=float(np.degrees(np.arccos(np.clip(axis @ up, -1.0, 1.0)))),
     )
+
+
+def planar_selection(selection: Any, min_yaw_share: float, imus: Iterable[ImuSamples]):
+    """The selection settings for this data: widened on planar motion (a ground vehicle).
+
+    A hand-held budget (tens of seconds in short windows) keeps too few of a drive's turns, and
+    the turns are what determine the horizontal lever arm (module docstring); so on planar,
+    yaw-dominant motion the budget becomes at least ``selection.planar_budget_s`` and the
+    windows at least ``selection.planar_window_s`` long.
+
+    Args:
+        selection: The recipe's ``selection`` (:class:`~l2calib.recipe.SelectionConfig`).
+        min_yaw_share: ``train.planar_min_yaw_share``.
+        imus: IMU samples of all the recordings (IMU frame).
+
+    Returns:
+        The settings to select with, and a note for the user (``None`` when unchanged).
+    """
+    if selection.planar_budget_s is None:
+        return selection, None
+    motion = planar_motion(imus)
+    if not motion.planar(min_yaw_share):
+        return selection, None
+    budget = max(selection.budget_s, selection.planar_budget_s)
+    window = max(selection.window_s, selection.planar_window_s)
+    if (budget, window) == (selection.budget_s, selection.window_s):
+        return selection, None
+    note = (
+        f"planar, yaw-dominant motion ({motion.describe()}): the selection keeps up to "
+        f"{budget:g} s in windows of {window:g} s (recipe: {selection.budget_s:g} s, "
+        f"{selection.window_s:g} s), since a drive's few turns are what determine the "
+        "horizontal lever arm (selection.planar_budget_s, planar_window_s; null keeps the "
+        "recipe's)"
+    )
+    return selection.model_copy(update={"budget_s": budget, "window_s": window}), note

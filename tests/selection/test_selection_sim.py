@@ -44,3 +44,19 @@ def test_ugv_selection_names_roll_and_pitch_weak():
     assert sel.total_s == 30.0
     assert sel.weak_axes[:2] == ["rotation about x", "rotation about y"]
     assert "rotation about z" not in sel.weak_axes
+
+
+def test_a_simulated_drive_is_selected_whole_and_the_user_told_why():
+    from l2calib.pipeline import select_data
+    from l2calib.recipe import load_recipe
+
+    drive, hand = run("ugv", seed=2), run("handheld", duration=40.0)
+    recipe = load_recipe("simulator", [])  # a hand-held budget: 10 s in 5 s windows
+    data = select_data(recipe, sequences=[drive.sequence()])
+    # Most of the 60 s drive (disjoint 10 s windows leave the gaps between them) instead of
+    # the recipe's 10 s.
+    assert data.selection.total_s >= 40.0 and data.selection.config.budget_s == 60.0
+    assert {c.end_ns - c.start_ns for c in data.selection.chosen} == {10 * NS_PER_S}
+    assert len(data.notes) == 1 and "planar, yaw-dominant motion" in data.notes[0]
+    held = select_data(recipe, sequences=[hand.sequence()])
+    assert held.selection.total_s == 10.0 and held.notes == []

@@ -10,8 +10,8 @@ from imu_signals import imu_signal
 from scipy.spatial.transform import Rotation
 
 from l2calib.data import ImuSamples
-from l2calib.recipe import ExtrinsicPrior, TrainConfig
-from l2calib.selection.planar import planar_motion
+from l2calib.recipe import ExtrinsicPrior, SelectionConfig, TrainConfig
+from l2calib.selection.planar import planar_motion, planar_selection
 from l2calib.train.env import CalibrationEnv
 from l2calib.train.vertical_hold import decide_hold
 
@@ -42,6 +42,20 @@ def test_hand_held_and_still_data_are_not_planar():
     assert hand.yaw_share < 0.6 and not hand.planar(0.9)
     still = planar_motion([_imu((0.0, 0.0, 0.0), seed=1)])
     assert not still.planar(0.9)  # noise alone turns too few samples to judge
+
+
+def test_planar_drives_select_more_data_in_longer_windows_unless_turned_off():
+    car, hand = [_imu((0.004, 0.004, 0.6), yaw_rate=0.2)], [_imu((0.5, 0.5, 0.8))]
+    hand_held = SelectionConfig(window_s=5.0, budget_s=15.0)
+    wide, note = planar_selection(hand_held, 0.97, car)
+    assert (wide.budget_s, wide.window_s) == (60.0, 10.0)
+    assert "planar" in note and "60 s in windows of 10 s" in note and "recipe: 15 s, 5 s" in note
+    assert planar_selection(hand_held, 0.97, hand) == (hand_held, None)  # not a vehicle
+    off = hand_held.model_copy(update={"planar_budget_s": None})
+    assert planar_selection(off, 0.97, car) == (off, None)
+    # A recipe that already asks for more keeps it (the budget and window only grow).
+    more = SelectionConfig(window_s=12.0, budget_s=90.0)
+    assert planar_selection(more, 0.97, car) == (more, None)
 
 
 def test_hold_sets_only_the_vertical_component_and_projects_the_spread():
