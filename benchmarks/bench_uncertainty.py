@@ -92,6 +92,7 @@ def assess_row(env, runs, recipe, hold, row: dict[str, Any]) -> dict[str, Any]:
         "step": [round(float(v), 4) for v in np.abs(unc.step) * UNITS[:n]],
         "misfit": [round(float(v), 4) for v in unc.misfit * UNITS[:n]],
         "held": [AXES[i] for i in unc.held], "blocks": unc.blocks, "scans": unc.scans,
+        "tau": round(unc.tau, 2),
         "undetermined": named, "evaluations": unc.evaluations,
     }  # fmt: skip
 

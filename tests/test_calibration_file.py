@@ -47,7 +47,7 @@ def test_the_per_axis_bounds_are_written_in_the_users_units(tmp_path):
     bound = np.array([math.radians(0.05), math.radians(0.1), math.inf, 0.004, 0.006, math.inf])
     zeros = np.zeros(6)
     flat = ~np.isfinite(bound)
-    unc = AxisUncertainty(bound, zeros, zeros, zeros, flat, 10, 200, 0.1, held=[5])
+    unc = AxisUncertainty(bound, zeros, zeros, zeros, flat, 10, 200, 0.1, held=[5], tau=6.25)
     path = write_calibration(tmp_path / "c.yaml", CalibrationResult(_T(), axis_uncertainty=unc))
     written = yaml.safe_load(path.read_text())["uncertainty"]
     assert written["bound95_rotation_deg"] == [0.05, 0.1, None]
@@ -55,6 +55,7 @@ def test_the_per_axis_bounds_are_written_in_the_users_units(tmp_path):
     assert "bound95_time_offset_s" not in written  # not estimated
     assert written["bound95_held"] == ["translation along LiDAR z"]
     assert "95 %" in written["bound95_meaning"]
+    assert written["bound95_correlation_scans"] == 6.25
 
 
 def test_unreliable_result_warns_above_the_paste_ready_blocks(tmp_path):

@@ -71,6 +71,26 @@ def test_misfit_grows_with_the_cost_left_at_the_result():
     # sqrt(2 C / S · (H⁻¹)_ii): H = 8 A
     expected = np.sqrt(2 * large.cost / 200 / (8 * np.diag(STIFF)))
     np.testing.assert_allclose(large.misfit, expected, rtol=1e-6)
+    # Residuals correlated over τ scans count as S / τ independent ones.
+    slow = unc.estimate(block_costs(mu, c=0.05), scans=200, tau=9.0)
+    np.testing.assert_allclose(slow.misfit, 3 * expected, rtol=1e-6)
+    assert slow.tau == 9.0 and unc.estimate(block_costs(mu), scans=200, tau=0.3).tau == 1.0
+
+
+def _ar1(phi: float, n: int, seed: int) -> np.ndarray:
+    rng, x = np.random.default_rng(seed), np.zeros(n)
+    for k in range(1, n):
+        x[k] = phi * x[k - 1] + rng.normal()
+    return x
+
+
+def test_correlation_time_of_white_and_drifting_residuals():
+    # c = r², r = 1 + small noise: white residuals count once, AR(1) ones (1 + φ)/(1 − φ) times.
+    white = [(1 + 0.01 * np.random.default_rng(s).normal(size=400)) ** 2 for s in range(3)]
+    assert 0.8 <= unc.correlation_time(white) <= 1.3
+    drift = [(1 + 0.01 * _ar1(0.8, 2000, s)) ** 2 for s in range(3)]  # τ = 9
+    assert 6.5 <= unc.correlation_time(drift) <= 11.5
+    assert unc.correlation_time([]) == 1.0 and unc.correlation_time([np.ones(50)]) == 1.0
 
 
 def test_a_flat_axis_is_named_with_what_would_fix_it():

@@ -206,9 +206,11 @@ def _bounds(unc: Any | None) -> dict[str, Any]:
     out["bound95_meaning"] = (
         "per LiDAR axis, the error of this calibration lies within +/- the bound with about 95 % "
         "confidence: the data's noise (block sandwich, Student-t), the distance to the reward's "
-        "own optimum and a model-misfit term, from 73-99 odometry runs around the result; null: "
-        "the reward is flat along the axis (or the axis was held). docs/design.md"
+        "own optimum and a model-misfit term (residuals counted once per bound95_"
+        "correlation_scans), from 73-99 odometry runs around the result; null: the reward is "
+        "flat along the axis (or the axis was held). docs/design.md"
     )
+    out["bound95_correlation_scans"] = round(float(unc.tau), 2)
     from l2calib.assess.uncertainty import AXIS_NAMES
 
     if unc.held:

@@ -265,7 +265,7 @@ class CalibrationEnv(ScoringEnv):
         time_offset_s: torch.Tensor | None,
         num_workers: int,
         block_s: float,
-    ) -> tuple[np.ndarray, int]:
+    ) -> tuple[np.ndarray, int, list[np.ndarray]]:
         """The reward's pose cost per block of data for this worker's share of the candidates.
 
         The cost of a scan is ``e_t / 4 + e_r / π²`` (m, rad: the paper reward's terms before
@@ -274,7 +274,9 @@ class CalibrationEnv(ScoringEnv):
         (:func:`l2calib.assess.uncertainty.block_index`). For the uncertainty estimate.
 
         Returns:
-            ``[k, B]`` costs (B blocks over all segments, in order) and the scans counted.
+            ``[k, B]`` costs (B blocks over all segments, in order), the scans counted, and
+            the per-scan costs of the share's first candidate on each segment (its valid
+            scans, in time order: the residuals' correlation; empty for an empty share).
         """
         from l2calib.assess.uncertainty import block_index
 
@@ -282,7 +284,7 @@ class CalibrationEnv(ScoringEnv):
         T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
         if self.hold is not None:
             T = self.hold.apply(T)
-        blocks, scans = [], 0
+        blocks, scans, first = [], 0, []
         outputs = self.backend.evaluate(T, self._offsets(T, offsets)) if T.shape[0] else []
         for i, o in enumerate(outputs):
             T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
@@ -293,9 +295,10 @@ class CalibrationEnv(ScoringEnv):
             b = block_index(o.stamps_ns * 1e-9, block_s)
             blocks += [cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
             scans += int(ok.sum())
+            first.append(cost[0, valid[0].numpy()])
         if not blocks:
-            return np.zeros((T.shape[0], 0)), scans
-        return np.stack(blocks, 1), scans
+            return np.zeros((T.shape[0], 0)), scans, first
+        return np.stack(blocks, 1), scans, first
 
     def trajectory_share(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int

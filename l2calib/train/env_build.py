@@ -142,13 +142,14 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
 
 def block_costs(
     env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, block_s: float
-) -> tuple[np.ndarray, int]:
+) -> tuple[np.ndarray, int, list[np.ndarray]]:
     """The pose cost of ``N`` candidates per block of data, spread over the env's workers.
 
     See :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`.
 
     Returns:
-        ``[N, B]`` costs in candidate order and the scans counted.
+        ``[N, B]`` costs in candidate order, the scans counted, and the first candidate's
+        per-scan costs on each segment (``[S_i]`` arrays, valid scans only).
     """
     from l2calib.train.env import ScoringEnv
 
@@ -156,12 +157,12 @@ def block_costs(
         return env.block_cost_share(T_imu_lidar, time_offset_s, 1, block_s)
     n = env.num_workers
     shares = _started(env).block_cost_share(T_imu_lidar, time_offset_s, n, block_s)
-    width = max(c.shape[1] for c, _ in shares)
+    width = max(c.shape[1] for c, _, _ in shares)
     out = np.zeros((T_imu_lidar.shape[0], width))
-    for i, (costs, _) in enumerate(shares):
+    for i, (costs, _, _) in enumerate(shares):
         if costs.shape[0]:
             out[i::n] = costs
-    return out, max(scans for _, scans in shares)
+    return out, max(scans for _, scans, _ in shares), shares[0][2]  # worker 0 has candidate 0
 
 
 def trajectory_previews(

@@ -201,7 +201,11 @@ class RayScoringEnv(ScoringEnv):
         return self._get([future])[0]
 
     def block_cost_share(self, T_imu_lidar, time_offset_s, num_workers: int, block_s: float):
-        """``[N, B]`` pose costs per block of data, the candidates split over the actors."""
+        """``[N, B]`` pose costs per block of data, the candidates split over the actors.
+
+        Also the scans counted and the first candidate's per-scan costs per segment (see
+        :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`).
+        """
         n = min(self.num_actors, T_imu_lidar.shape[0])
         futures = []
         for i in range(n):
@@ -213,9 +217,9 @@ class RayScoringEnv(ScoringEnv):
             )
         parts = self._get(futures)
         out = np.zeros((T_imu_lidar.shape[0], parts[0][0].shape[1]))
-        for i, (costs, _) in enumerate(parts):
+        for i, (costs, _, _) in enumerate(parts):
             out[i::n] = costs
-        return out, parts[0][1]
+        return out, parts[0][1], parts[0][2]  # actor 0 has candidate 0
 
     def terminate(self) -> None:
         """Kills the actors at once (an interrupted run: they may be mid-batch)."""

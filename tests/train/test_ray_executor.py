@@ -124,10 +124,11 @@ def test_batches_of_any_size_score_alike_on_actors(ray_instance, fake_backend_en
         for n in (1, 5):
             T = probe(torch.eye(4, dtype=torch.float64))[:n]
             assert torch.equal(score_batch(remote, T).reward, score_batch(local, T).reward)
-            costs, scans = block_costs(remote, T, None, 2.0)  # the uncertainty's batch
-            expected, expected_scans = block_costs(local, T, None, 2.0)
+            costs, scans, centre = block_costs(remote, T, None, 2.0)  # the uncertainty's batch
+            expected, expected_scans, expected_centre = block_costs(local, T, None, 2.0)
             assert costs.shape == expected.shape and scans == expected_scans
             assert (costs == expected).all()
+            assert all((a == b).all() for a, b in zip(centre, expected_centre, strict=True))
     finally:
         remote.close()
 

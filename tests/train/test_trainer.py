@@ -99,14 +99,19 @@ def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     try:
         expected = score_batch(local, T)
         got = score_batch(workers, T)  # split over 2 processes, any n (fewer than workers too)
-        costs, scans = block_costs(workers, T, None, 2.0)  # the uncertainty's batch, likewise
-        costs_local, scans_local = block_costs(local, T, None, 2.0)
+        costs, scans, centre = block_costs(workers, T, None, 2.0)  # the uncertainty's batch, likewise
+        costs_local, scans_local, centre_local = block_costs(local, T, None, 2.0)
     finally:
         workers.close()
     # per-block costs: the same candidates in the same order, summing to the reward's errors
     assert costs.shape == costs_local.shape and costs.shape[0] == n and costs.shape[1] >= 2
     np.testing.assert_allclose(costs, costs_local)
     assert scans == scans_local
+    # the first candidate's per-scan costs, per segment: the same series, summing to its blocks
+    assert len(centre) == len(centre_local) == len(data.segments)
+    for a, b in zip(centre, centre_local, strict=True):
+        np.testing.assert_allclose(a, b)
+    np.testing.assert_allclose(sum(c.sum() for c in centre), costs[0].sum())
     pooled = got.num_poses * (got.mean_e_t / 4 + got.mean_e_r / math.pi**2)
     np.testing.assert_allclose(costs.sum(1), pooled.numpy(), rtol=1e-9)
     assert got.reward.shape == (n,)
