@@ -99,7 +99,7 @@ def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     try:
         expected = score_batch(local, T)
         got = score_batch(workers, T)  # split over 2 processes, any n (fewer than workers too)
-        costs, scans, centre = block_costs(workers, T, None, 2.0)  # the uncertainty's batch, likewise
+        costs, scans, centre = block_costs(workers, T, None, 2.0)  # the uncertainty's batch
         costs_local, scans_local, centre_local = block_costs(local, T, None, 2.0)
     finally:
         workers.close()
