@@ -172,12 +172,9 @@ def correlation_time(series: list[np.ndarray], window: float = 5.0) -> float:
             continue
         f = np.fft.rfft(r, 2 * n)
         rho = np.fft.irfft(f * np.conj(f))[:n]
-        rho = rho / rho[0]
-        tau = 1.0
-        for m in range(1, n):
-            tau = 1.0 + 2.0 * float(rho[1 : m + 1].sum())
-            if m >= window * tau:
-                break
+        tau_m = 1.0 + 2.0 * np.cumsum(rho[1:] / rho[0])  # τ with the window at m = 1, 2, …
+        inside = np.flatnonzero(np.arange(1, n) >= window * tau_m)
+        tau = float(tau_m[inside[0]] if inside.size else tau_m[-1])
         taus.append(max(tau, 1.0))
         weights.append(n)
     return float(np.average(taus, weights=weights)) if taus else 1.0
