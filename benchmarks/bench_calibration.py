@@ -20,7 +20,7 @@ import os
 import re
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -462,6 +462,14 @@ def main() -> None:
     )
     parser.add_argument("--out", type=Path, default=RESULTS / "calibration.json")
     parser.add_argument(
+        "--set",
+        nargs="*",
+        default=[],
+        metavar="KEY=VALUE",
+        help="extra recipe overrides for every case run (an experiment: the case's name gets "
+        "them appended in brackets, so its rows never mix with the defaults')",
+    )
+    parser.add_argument(
         "--render", action="store_true", help="only rewrite the markdown from the JSON (no runs)"
     )
     args = parser.parse_args()
@@ -498,6 +506,12 @@ def main() -> None:
     for case in cases(args.quick):
         if args.only and case.name not in args.only:
             continue
+        if args.set:
+            case = replace(
+                case,
+                name=f"{case.name} [{' '.join(args.set)}]",
+                overrides=[*case.overrides, *args.set],
+            )
         for seed in args.seeds:
             console.print(f"[cyan]•[/] {case.name} (train seed {seed})")
             try:
