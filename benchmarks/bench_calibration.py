@@ -467,7 +467,7 @@ def main() -> None:
         default=[],
         metavar="KEY=VALUE",
         help="extra recipe overrides for every case run (an experiment: the case's name gets "
-        "them appended in brackets, so its rows never mix with the defaults')",
+        "them appended after 'with', so its rows never mix with the defaults')",
     )
     parser.add_argument(
         "--render", action="store_true", help="only rewrite the markdown from the JSON (no runs)"
@@ -509,7 +509,7 @@ def main() -> None:
         if args.set:
             case = replace(
                 case,
-                name=f"{case.name} [{' '.join(args.set)}]",
+                name=f"{case.name} with {' '.join(args.set)}",
                 overrides=[*case.overrides, *args.set],
             )
         for seed in args.seeds:
