@@ -132,8 +132,8 @@ def render(result: dict[str, Any], out: Path) -> None:
     lines = [
         "# Per-axis uncertainty against the true error (issue 25)\n",
         f"{len(result['rows'])} runs, {s['axis_runs']} axis-runs: true error inside the 95 % "
-        f"bound on **{100 * s['inside_share']:.0f} %** (target ≥ 90 %); median error / bound "
-        f"**{s['median_error_over_bound']:.2f}** (target ≥ 0.25); ugv runs with the vertical "
+        f"bound on **{100 * s['inside_share']:.1f} %** (target ≥ 90 %); median error / bound "
+        f"**{s['median_error_over_bound']:.3f}** (target ≥ 0.25); ugv runs with the vertical "
         f"axis held and named: {s['ugv_vertical_held_and_named']} / {s['ugv_runs']}; hand-held "
         f"runs below 1 cm / 0.2° with an undetermined axis: "
         f"{s['good_handheld_with_undetermined']} / {s['good_handheld_runs']}.\n",
