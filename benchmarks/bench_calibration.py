@@ -467,7 +467,7 @@ def main() -> None:
         default=[],
         metavar="KEY=VALUE",
         help="extra recipe overrides for every case run (an experiment: the case's name gets "
-        "them appended after 'with', so its rows never mix with the defaults')",
+        "them appended after 'with', so its rows never mix with the default rows)",
     )
     parser.add_argument(
         "--render", action="store_true", help="only rewrite the markdown from the JSON (no runs)"
