@@ -25,8 +25,9 @@ on axis ``i`` is
   (:func:`correlation_time`): ``S/τ`` independent residuals. A bias every block shares (the
   odometry's own model error, a reference's drift) moves the minimum of every block alike,
   which the sandwich cannot see; this term grows with how badly the best extrinsic still fits
-  and with how slowly its misfit varies (a drift: τ 5–9 scans on the simulated ground
-  vehicle, 1.1–1.8 on hand-held runs).
+  and with how slowly its misfit varies (a drift: τ 4.3–9.7 scans on the simulated ground
+  vehicle and UAV, 1.0–4.2 on hand-held runs; ~21 where a search was trapped off the truth;
+  ``benchmarks/results/uncertainty.json``).
 
 Directions along which ``C`` does not curve up (relative eigenvalue of ``H`` in stencil units
 below :data:`FLAT_RTOL`, or negative) carry no information: an axis that lies mostly in them is
