@@ -4,12 +4,13 @@ Run: ``python -m benchmarks.experiment_rate_rotation [--cases NAME ...]``.
 
 For the first simulated sequence of each case: the exact LiDAR trajectory's rotation increments
 (one per scan interval, as body rates ``w_lidar``) against the gyro averaged over the same
-intervals (``w_imu``; the simulated time offset, a few ms, is not removed); the rotation
-``R`` with ``R w_lidar ≈ w_imu`` by SVD (Kabsch). Its error is the angle of ``R_trueᵀ R``; the singular values (normalised by the largest) say how much
-motion each direction rests on (on a ground vehicle two are ~0.001-0.004: the yaw about the
-vertical is then barely determined, only the vertical axis itself). Issue 27: a search from
-no initial guess on one drive was trapped 39° off because the reward is a needle in roll and
-pitch on planar data (``docs/backends.md``); this measures how good a start the rates give.
+intervals (``w_imu``; the simulated time offset, a few ms, is not removed); the rotation ``R``
+with ``R w_lidar ≈ w_imu`` by SVD (Kabsch). Its error is the angle of ``R_trueᵀ R``; the
+singular values (normalised by the largest) say how much motion each direction rests on (on a
+ground vehicle two are ~0.001-0.004: the yaw about the vertical is then barely determined, only
+the vertical axis itself). Issue 27: a search from no initial guess on one drive was trapped 39°
+off because the reward is a needle in roll and pitch on planar data (``docs/backends.md``); this
+measures how good a start the rates give.
 Results: ``benchmarks/results/experiments/rotation_from_rates.json``.
 """
 
