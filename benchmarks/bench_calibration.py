@@ -258,6 +258,9 @@ def run_case(
         **_offset_fields(result, runs[0].time_offset_s),
         "warnings": result.warnings,
         "attempts": result.extra.get("attempts"),  # PPO restarts after a failed agreement check
+        # the first attempt's rotation start from the rates (rows without it: before 2026-12-05's
+        # l2calib.train.rotation_start, or none was found)
+        "rotation_start": result.extra.get("rotation_start"),
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
         "machine": machine_info(),  # at the row's end; "load" above is kept for older readers

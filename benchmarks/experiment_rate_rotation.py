@@ -11,7 +11,9 @@ ground vehicle two are ~0.001-0.004: the yaw about the vertical is then barely d
 the vertical axis itself). Issue 27: a search from no initial guess on one drive was trapped 39°
 off because the reward is a needle in roll and pitch on planar data (``docs/backends.md``); this
 measures how good a start the rates give.
-Results: ``benchmarks/results/experiments/rotation_from_rates.json``.
+Results: ``benchmarks/results/experiments/rotation_from_rates.json``. With ``--prepared``: the
+training's own start (:mod:`l2calib.train.rotation_start`) on the selected data with the case's
+reference, its error per LiDAR axis against its starting σ (``rotation_start.json``).
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ from benchmarks.bench_calibration import cases, simulate_case
 from benchmarks.machine import machine_info
 
 OUT = Path(__file__).parent / "results" / "experiments" / "rotation_from_rates.json"
+OUT_PREPARED = OUT.with_name("rotation_start.json")
 DEFAULT_CASES = ["handheld", "uav seq 1", "ugv seq 1", "ugv drive velodyne-vlp-32c gt"]
 
 
@@ -57,19 +60,69 @@ def rates_rotation(run) -> dict[str, object]:
     }
 
 
+def prepared_start(case) -> dict[str, object]:
+    """The training's own rate start (:mod:`l2calib.train.rotation_start`) on the case's data.
+
+    The full pipeline up to training (selection, the case's reference, the rate time offset),
+    then :func:`rotation_from_rates`: its error per LiDAR axis against its starting σ.
+    """
+    from l2calib.calibration import Calibration
+    from l2calib.interfaces import ReferenceTrajectory
+    from l2calib.recipe import load_recipe
+    from l2calib.train.offset_hold import offset_from_rates
+    from l2calib.train.rotation_start import rotation_from_rates
+
+    runs = simulate_case(case)
+    overrides = [o for o in case.overrides if o != "reference.name=gt"]
+    recipe = load_recipe(case.recipe, overrides)
+    exact = None
+    if "reference.name=gt" in case.overrides:
+        gt = {r.sequence().name: r.gt_lidar for r in runs}
+
+        def exact(segments):
+            return [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segments]
+
+    run = Calibration(recipe)
+    data = run.prepare(sequences=[r.sequence() for r in runs], references=exact)
+    recipe, _ = offset_from_rates(recipe, data, lambda _m: None)
+    offset = recipe.train.known_time_offset_s
+    offset = data.time_offset_hint_s if offset is None else offset
+    start = rotation_from_rates(data.references, data.segments, data.sequences, offset or 0.0)
+    if start is None:
+        return {"start": None}
+    from scipy.spatial.transform import Rotation
+
+    R = Rotation.from_quat(start.quat_xyzw).as_matrix()
+    delta = Rotation.from_matrix(runs[0].T_imu_lidar[:3, :3].T @ R).as_rotvec()
+    return {
+        "offset_used_ms": None if offset is None else round(1000 * offset, 3),
+        "start_error_deg": round(float(np.degrees(np.linalg.norm(delta))), 3),
+        "start_error_lidar_axes_deg": np.round(np.degrees(np.abs(delta)), 3).tolist(),
+        "start": start.to_dict(),
+    }
+
+
 def main() -> None:
     """Runs the cases, prints a line each, writes the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=DEFAULT_CASES)
+    parser.add_argument(
+        "--prepared",
+        action="store_true",
+        help="the training's start on the selected data and the case's own reference",
+    )
+    parser.add_argument("--out", type=Path, default=None)
     args = parser.parse_args()
     torch.set_default_dtype(torch.float64)
     rows = []
     for name in args.cases:
         case = next(c for c in cases(quick=False) if c.name == name)
-        rows.append({"case": name, **rates_rotation(simulate_case(case)[0])})
+        row = prepared_start(case) if args.prepared else rates_rotation(simulate_case(case)[0])
+        rows.append({"case": name, **row})
         print(rows[-1], flush=True)
-    OUT.parent.mkdir(parents=True, exist_ok=True)
-    OUT.write_text(json.dumps({"rows": rows, "machine": machine_info()}, indent=1))
+    out = args.out or (OUT_PREPARED if args.prepared else OUT)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"rows": rows, "machine": machine_info()}, indent=1))
 
 
 if __name__ == "__main__":

@@ -193,7 +193,11 @@ class CalibrationPolicy(ABC):
 
     A plugin's spec builds one with ``spec.build(options, action_dim=7|8, prior=…, seed=…)``;
     ``action_dim`` comes from the env's ``action_spec`` (7: quaternion xyzw + translation m;
-    8: + time offset s).
+    8: + time offset s). Only where set, the training also passes ``init_time_offset_s``
+    (the offset's starting mean, s) and ``rotation_start`` (an object with ``quat_xyzw`` and
+    ``sigma_deg`` per LiDAR axis: :class:`l2calib.train.rotation_start.RotationStart`), so a
+    plugin that takes neither still works where they are not set
+    (``train.rotation_from_rates: off``).
 
     Attributes:
         actor: TorchRL ``ProbabilisticActor`` reading ``"observation"`` and writing ``"action"``

@@ -67,6 +67,13 @@ class TrainConfig(StrictModel):
         "the extrinsic only; start = start the joint estimation there. Elsewhere (flat "
         "correlation: uav, ugv) the offset is estimated jointly either way (docs/time_offset.md)",
     )
+    rotation_from_rates: Literal["start", "off"] = Field(
+        "start",
+        description="without policy.prior: start = PPO's first attempt starts its rotation at "
+        "the references' body rates fitted to the gyro (SVD), with a spread per axis from the "
+        "fit (l2calib.train.rotation_start); off = from a uniform rotation. Restarts always "
+        "start from no guess",
+    )
     known_time_offset_s: float | None = Field(
         None,
         ge=-0.5,

@@ -175,7 +175,9 @@ def train_policy(
     4×4; default identity) run once more on it for the report's trajectories.
 
     When the result fails the reference-agreement check (:mod:`l2calib.assess.agreement`), PPO
-    starts again from scratch with another seed, up to ``train.restarts`` times, and the attempt
+    starts again from scratch with another seed (and from no guess where the first attempt
+    started at the rate rotation, :mod:`l2calib.train.rotation_start`), up to
+    ``train.restarts`` times, and the attempt
     with the highest reward is kept: on weakly excited data a run can settle in a local optimum
     that the reward itself ranks far below the truth. Restart ``k`` keeps its checkpoint and
     metrics in ``out_dir/restart-k``. The outcome returned is the kept attempt's; the result's
@@ -192,10 +194,12 @@ def train_policy(
             "resume needs the output directory of the run to continue", fix="pass its out_dir"
         )
     from l2calib.train.offset_hold import offset_from_rates
+    from l2calib.train.rotation_start import rotation_start
 
     say = stage or (lambda _msg: None)
     recipe, offset_method = offset_from_rates(recipe, data, say)
     hold = _vertical_hold(recipe, data, say)
+    rot_start = rotation_start(recipe, data, say)
     where = " on Ray actors" if recipe.train.executor == "ray" else ""
     say(f"preparing the {recipe.backend.name} odometry{where}")
     t0 = time.monotonic()
@@ -211,8 +215,9 @@ def train_policy(
             # A restart that had not begun when the run was killed starts afresh on --resume.
             again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
             result_outcome = _attempt(
-                recipe, data, env, seed, sub, again, progress, say, k, hold=hold
-            )
+                recipe, data, env, seed, sub, again, progress, say, k, hold=hold,
+                start=rot_start if k == 0 else None,
+            )  # fmt: skip
             attempts.append((*result_outcome, seed))
             result = attempts[-1][0]
             if not result.warnings or k == recipe.train.restarts:
@@ -220,12 +225,15 @@ def train_policy(
             agreement = result.reference_agreement
             say(
                 f"the result disagrees with the reference ({_agreement_text(agreement)}): "
-                f"PPO starts again with seed {seed + RESTART_SEED_STRIDE} "
-                f"(restart {k + 1} of at most {recipe.train.restarts})"
+                f"PPO starts again with seed {seed + RESTART_SEED_STRIDE}"
+                + (" from no guess " if k == 0 and rot_start is not None else " ")
+                + f"(restart {k + 1} of at most {recipe.train.restarts})"
             )
         run = TrainedRun(*_keep_best(attempts))
         if run.result.time_offset_s is not None:
             run.result.time_offset_method = offset_method
+        if rot_start is not None:
+            run.result.extra["rotation_start"] = rot_start.to_dict()
         run.result.stage_s = {"odometry_preparation": prepared_s, **run.result.stage_s}
         t0 = time.monotonic()
         _add_trajectories(run, env, np.eye(4) if before is None else before)
@@ -345,11 +353,13 @@ def _attempt(
     say: Callable[[str], None],
     attempt: int = 0,
     hold: Any | None = None,
+    start: Any | None = None,
 ) -> tuple[CalibrationResult, Any]:
     """One PPO run from scratch with ``seed``, its refinement and its resolution probe.
 
     ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user;
-    ``hold`` is the env's vertical lever-arm hold (the result carries the held value).
+    ``hold`` is the env's vertical lever-arm hold (the result carries the held value);
+    ``start`` the rotation start from the rates (:mod:`l2calib.train.rotation_start`) or None.
     """
     from l2calib.assess import sensitivity
     from l2calib.assess.refine import refine
@@ -371,13 +381,14 @@ def _attempt(
     torch.manual_seed(seed)
     np.random.seed(seed)
     action_dim = int(env.action_spec.shape[-1])  # 8 with the time offset, else 7
-    start = offset_start_s(cfg, data.time_offset_hint_s)
+    offset0 = offset_start_s(cfg, data.time_offset_hint_s)
     policy = get_plugin("l2calib.policies", recipe.policy.name).build(
         recipe.policy.options,
         action_dim=action_dim,
         prior=recipe.policy.prior,
         seed=seed,
-        **({} if start is None else {"init_time_offset_s": start}),
+        **({} if offset0 is None else {"init_time_offset_s": offset0}),
+        **({} if start is None else {"rotation_start": start}),
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint, hold=hold)
@@ -421,7 +432,7 @@ def _attempt(
         best = polished.extrinsic
     T_mode, offset = best.T_imu_lidar, best.time_offset_s
     if offset is None and cfg.known_time_offset_s is not None:  # held, not estimated
-        offset = start = float(cfg.known_time_offset_s)
+        offset = offset0 = float(cfg.known_time_offset_s)
     score = _Scorer(env, offset)
     stage_s["refinement"] = time.monotonic() - clock
     clock = time.monotonic()
@@ -469,7 +480,7 @@ def _attempt(
         + undetermined_axes(resolution, data.selection, axis_unc, cfg.uncertainty)
         + (offset_res.undetermined() if offset_res else []),
         time_offset_resolution=offset_res,
-        time_offset_start_s=(start or 0.0) if offset is not None else None,
+        time_offset_start_s=(offset0 or 0.0) if offset is not None else None,
         reference_agreement=agreement,
         warnings=disagreement_warnings(agreement, sources),
         extra={

@@ -214,6 +214,9 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         seed: Seeds the actor's own sampling generator (independent of the global RNG).
         init_time_offset_s: Starting mean of the time offset (s, ``t_imu = t_lidar + offset``;
             e.g. the reference's clock check), with ``action_dim`` 8.
+        rotation_start: Without a prior, where the rotation starts: an object with
+            ``quat_xyzw`` (4) and ``sigma_deg`` (3, per LiDAR axis), e.g.
+            :class:`l2calib.train.rotation_start.RotationStart`; ``None``: uniform.
 
     Attributes:
         actor: ``ProbabilisticActor`` reading ``"observation"``, writing ``"action"`` and
@@ -229,6 +232,7 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         prior: ExtrinsicPrior | None = None,
         seed: int = 0,
         init_time_offset_s: float = 0.0,
+        rotation_start: Any | None = None,
     ) -> None:
         super().__init__()
         if action_dim not in (7, 8):
@@ -240,7 +244,9 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
             raise ConfigError(f"unknown policy kind {kind!r}", fix="use bingham or gaussian")
         self.kind, self.options, self.action_dim = kind, options, action_dim
         self.time_offset = action_dim == 8
-        self.params_net = self._make_params(kind, options, prior, init_time_offset_s)
+        self.params_net = self._make_params(
+            kind, options, prior, init_time_offset_s, None if prior else rotation_start
+        )
         keys = [*_KEYS[kind], "translation_loc", "translation_scale"]
         module = TensorDictModule(self.params_net, in_keys=[OBSERVATION_KEY], out_keys=keys)
         self.actor = ProbabilisticActor(
@@ -276,7 +282,12 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
 
     # ------------------------------------------------------------------ construction
     def _make_params(
-        self, kind: str, o: Any, prior: ExtrinsicPrior | None, offset0_s: float = 0.0
+        self,
+        kind: str,
+        o: Any,
+        prior: ExtrinsicPrior | None,
+        offset0_s: float = 0.0,
+        start: Any | None = None,
     ) -> nn.Module:
         k = self.action_dim - 4
         loc0 = torch.zeros(k, dtype=F64)
@@ -303,6 +314,10 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         if prior is not None:
             R = euler_rpy_to_matrix(torch.deg2rad(_t(prior.rpy_deg)))
             q0, sigma_rot = matrix_to_quat(R), math.radians(prior.sigma_rotation_deg)
+        elif start is not None:  # per-axis σ (LiDAR axes) from the rate fit
+            q0 = quat_normalize(_t(start.quat_xyzw))
+            sigma_axes = torch.deg2rad(_t(start.sigma_deg))
+            sigma_rot = float(sigma_axes.min())
         else:
             q0 = _t([0.0, 0.0, 0.0, 1.0])
             sigma_rot = (
@@ -316,10 +331,14 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
             )
         if kind == "bingham":
             sig = None if sigma_rot is None else torch.full((3,), sigma_rot, dtype=F64)
+            if start is not None and prior is None:
+                sig = sigma_axes
             return BinghamParams(q0, sig, rot_min, trans, o.allow_positive_concentration)
         if sigma_rot is None:  # broad start: unit mean at identity, unit σ
             mu0, comp = q0 * NO_IDEA_GAUSSIAN_MEAN_NORM, torch.ones(4, dtype=F64)
         else:  # φ = 2δq for a unit mean, so each component gets σ/2
+            if start is not None and prior is None:  # one σ for all: the axes' RMS
+                sigma_rot = float(sigma_axes.pow(2).mean().sqrt())
             mu0, comp = q0, torch.full((4,), sigma_rot / 2, dtype=F64)
         return GaussianParams(mu0, comp, rot_min / 2, trans)
 

@@ -1,7 +1,8 @@
 """Plugin specs of the policies (light: pydantic options + lazy factories, no torch import).
 
 Entry-point group ``l2calib.policies``: ``bingham`` (L2Calib) and ``gaussian`` (L2Calib-g).
-``spec.build(options, action_dim=7|8, prior=ExtrinsicPrior|None, seed=int)`` returns a
+``spec.build(options, action_dim=7|8, prior=ExtrinsicPrior|None, seed=int)`` (optionally
+``init_time_offset_s=float``, ``rotation_start=RotationStart``) returns a
 :class:`l2calib_policies.actors.ExtrinsicPolicy`.
 """
 
