@@ -43,8 +43,10 @@ FLOOR_DEG = 2.0
 CAP_DEG = 30.0
 #: Fewest rate intervals over all segments for a start.
 MIN_INTERVALS = 30
-#: Largest residual relative to the rates' RMS: beyond it the reference does not follow the gyro.
-MAX_RELATIVE_RESIDUAL = 0.3
+#: Largest residual relative to the rates' RMS: beyond it the reference does not follow the gyro
+#: (rates unrelated to the gyro give ~1; ct-lidar on a gentle VLP-32C drive gave 0.17, with the
+#: start 0.05° from the truth: ``results/experiments/rotation_start.json``).
+MAX_RELATIVE_RESIDUAL = 0.5
 
 
 @dataclass(frozen=True)
