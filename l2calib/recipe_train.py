@@ -214,7 +214,7 @@ class TrainConfig(StrictModel):
 
     uncertainty: UncertaintyConfig = Field(default_factory=UncertaintyConfig)
 
-    @field_validator("hold_vertical_translation", mode="before")
+    @field_validator("hold_vertical_translation", "rotation_from_rates", mode="before")
     @classmethod
     def _yaml_on_off(cls, value: object) -> object:
         """YAML 1.1 reads an unquoted ``on`` / ``off`` as a boolean: take it as meant."""

@@ -150,6 +150,8 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
             "demo", "--out", str(out), "--duration", "5",
             "--set", "train.max_iterations=2", "--set", "train.candidates_per_iteration=8",
             "--set", "selection.window_s=3", "--set", "selection.budget_s=3",
+            # from a uniform rotation (the rates' start would make 2 iterations good enough)
+            "--set", "train.rotation_from_rates=off",
         ],
     )  # fmt: skip
     assert res.exit_code == 0, res.output

@@ -149,11 +149,14 @@ def rotation_from_rates(
 
     imu = {s.name: s.imu for s in sequences}
     seq_of = {s.name: s.sequence for s in segments}
-    pairs = []
+    pairs, seen = [], set()
     for ref in references:
         sim = imu.get(seq_of.get(ref.segment, ""))
         if ref.constrains != "pose" or sim is None or len(ref.trajectory) < 3:
             continue
+        if id(ref.trajectory) in seen:  # one trajectory shared by several segments: once
+            continue
+        seen.add(id(ref.trajectory))
         traj = ref.trajectory
         R = Rotation.from_quat(traj.quat_xyzw).as_matrix()
         dt = np.diff(traj.stamps_ns) / NS_PER_S

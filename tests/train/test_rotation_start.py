@@ -134,7 +134,8 @@ def test_the_simulators_hand_held_rig_starts_within_a_tenth_of_a_degree(hand_hel
     # the user's prior wins, and the start can be turned off
     prior = recipe_from_dict({"policy": {"prior": {"rpy_deg": [0, 0, 0]}}})
     assert rotation_start(prior, data, notes.append) is None
-    off = recipe_from_dict({"train": {"rotation_from_rates": "off"}})
+    off = recipe_from_dict({"train": {"rotation_from_rates": False}})  # YAML 1.1 reads `off`
+    assert off.train.rotation_from_rates == "off"
     assert rotation_start(off, data, notes.append) is None
 
 
