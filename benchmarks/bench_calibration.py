@@ -167,9 +167,23 @@ def exact_reference_env(name: str | Case, candidates: int = 8, exact: bool = Tru
         ``candidates`` at a time, the simulated runs (truth: ``runs[0].T_imu_lidar``), the
         prepared data (segments and references) and the case's recipe.
     """
+    from l2calib.train.env import make_env
+
+    runs, data, recipe = prepare_case(name, exact)
+    env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, candidates)
+    return env, runs, data, recipe
+
+
+def prepare_case(name: str | Case, exact: bool = True):
+    """A case's simulated runs, its prepared data (selection, references) and its recipe.
+
+    ``exact``: the exact LiDAR trajectory as reference; else the case's own reference.
+
+    Returns:
+        ``(runs, data, recipe)`` as in :func:`exact_reference_env`.
+    """
     from l2calib.calibration import Calibration
     from l2calib.interfaces import ReferenceTrajectory
-    from l2calib.train.env import make_env
 
     case = name if isinstance(name, Case) else next(c for c in cases(quick=False) if c.name == name)
     runs = simulate_case(case)
@@ -184,8 +198,7 @@ def exact_reference_env(name: str | Case, candidates: int = 8, exact: bool = Tru
         if exact
         else None,
     )
-    env = make_env(recipe.model_dump(mode="json"), data.segments, data.references, candidates)
-    return env, runs, data, recipe
+    return runs, data, recipe
 
 
 def run_case(

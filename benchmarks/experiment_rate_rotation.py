@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from benchmarks.bench_calibration import cases, simulate_case
+from benchmarks.bench_calibration import cases, prepare_case, simulate_case
 from benchmarks.machine import machine_info
 
 OUT = Path(__file__).parent / "results" / "experiments" / "rotation_from_rates.json"
@@ -36,6 +36,8 @@ DEFAULT_CASES = ["handheld", "uav seq 1", "ugv seq 1", "ugv drive velodyne-vlp-3
 def rates_rotation(run) -> dict[str, object]:
     """The Kabsch rotation of one simulated run, its error (deg) and normalised singular values."""
     from scipy.spatial.transform import Rotation
+
+    from l2calib.train.rotation_start import fit_rotation
 
     gt = run.gt_lidar
     M = np.asarray(gt.matrices())
@@ -50,12 +52,10 @@ def rates_rotation(run) -> dict[str, object]:
             for a, b in zip(ts[:-1], ts[1:], strict=True)
         ]
     )
-    U, S, Vt = np.linalg.svd(w_lidar.T @ w_imu)
-    D = np.diag([1.0, 1.0, np.sign(np.linalg.det(Vt.T @ U.T))])
-    R = Vt.T @ D @ U.T
+    R, _, S = fit_rotation([(w_lidar, w_imu)], iterations=1)  # no bias: Kabsch alone
     err = Rotation.from_matrix(run.T_imu_lidar[:3, :3].T @ R).magnitude()
     return {
-        "singular_values": np.round(S / S[0], 4).tolist(),
+        "singular_values": np.round(S, 4).tolist(),
         "rotation_error_deg": round(float(np.degrees(err)), 3),
     }
 
@@ -66,24 +66,10 @@ def prepared_start(case) -> dict[str, object]:
     The full pipeline up to training (selection, the case's reference, the rate time offset),
     then :func:`rotation_from_rates`: its error per LiDAR axis against its starting σ.
     """
-    from l2calib.calibration import Calibration
-    from l2calib.interfaces import ReferenceTrajectory
-    from l2calib.recipe import load_recipe
     from l2calib.train.offset_hold import offset_from_rates
     from l2calib.train.rotation_start import rotation_from_rates
 
-    runs = simulate_case(case)
-    overrides = [o for o in case.overrides if o != "reference.name=gt"]
-    recipe = load_recipe(case.recipe, overrides)
-    exact = None
-    if "reference.name=gt" in case.overrides:
-        gt = {r.sequence().name: r.gt_lidar for r in runs}
-
-        def exact(segments):
-            return [ReferenceTrajectory(s.name, gt[s.sequence], source="gt") for s in segments]
-
-    run = Calibration(recipe)
-    data = run.prepare(sequences=[r.sequence() for r in runs], references=exact)
+    runs, data, recipe = prepare_case(case, exact="reference.name=gt" in case.overrides)
     recipe, _ = offset_from_rates(recipe, data, lambda _m: None)
     offset = recipe.train.known_time_offset_s
     offset = data.time_offset_hint_s if offset is None else offset

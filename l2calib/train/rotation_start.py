@@ -202,12 +202,12 @@ def rotation_start(recipe: Any, data: Any, say: Callable[[str], None]) -> Rotati
     """
     if recipe.train.rotation_from_rates == "off" or recipe.policy.prior is not None:
         return None
-    train = recipe.train
-    offset = train.known_time_offset_s  # held, else the user's start, else the data's hint
+    from l2calib.training import offset_start_s
+
+    train = recipe.train  # the offset the odometry runs at: held, else where its estimate starts
+    offset = train.known_time_offset_s
     if offset is None:
-        offset = train.init_time_offset_s
-    if offset is None:
-        offset = data.time_offset_hint_s
+        offset = offset_start_s(train, data.time_offset_hint_s)
     start = rotation_from_rates(data.references, data.segments, data.sequences, offset or 0.0)
     if start is None:
         msg = (
