@@ -237,7 +237,12 @@ def run_case(
     run.assess()
     wall = time.monotonic() - t0
     T_gt = runs[0].T_imu_lidar
-    dt_cm = np.abs(result.T_imu_lidar[:3, 3] - T_gt[:3, 3]) * 100
+    diff_cm = (result.T_imu_lidar[:3, 3] - T_gt[:3, 3]) * 100
+    dt_cm = np.abs(diff_cm)
+    hold = result.extra.get("vertical_hold")
+    if hold is not None:  # the held axis is not estimated: judge the others
+        axis = np.asarray(hold["axis_imu"], dtype=float)
+        diff_cm = diff_cm - np.dot(diff_cm, axis) * axis
     dr_deg = rotation_errors_deg(T_gt, result.T_imu_lidar)
     angle = float(
         torch.rad2deg(
@@ -256,6 +261,8 @@ def run_case(
         "dt_cm": dt_cm.round(2).tolist(),
         "dr_deg": dr_deg.round(3).tolist(),
         "t_err_cm": round(float(np.linalg.norm(dt_cm)), 2),
+        # the lever arm's error over the axes the run estimated (without a held vertical)
+        "t_err_estimated_cm": round(float(np.linalg.norm(diff_cm)), 2),
         "r_err_deg": round(angle, 3),
         "wall_s": round(wall, 1),
         "evaluations": result.evaluations,
@@ -265,7 +272,7 @@ def run_case(
         "stop": result.stop_reason,
         "status": result.status,
         "undetermined": result.undetermined,
-        "vertical_hold": result.extra.get("vertical_hold"),  # planar motion: not estimated
+        "vertical_hold": hold,  # planar motion: not estimated
         "reference_agreement": result.reference_agreement,
         "T_imu_lidar": np.round(result.T_imu_lidar, 6).tolist(),  # to re-score a bad result
         **_offset_fields(result, runs[0].time_offset_s),
@@ -274,6 +281,9 @@ def run_case(
         # the first attempt's rotation start from the rates (rows without it: before 2026-12-05's
         # l2calib.train.rotation_start, or none was found)
         "rotation_start": result.extra.get("rotation_start"),
+        # and its translation start from the accelerations (rows without it: before
+        # l2calib.train.lever_start, 2026-12-05 session 30)
+        "translation_start": result.extra.get("translation_start"),
         "target": case.target,
         "load": [round(x, 2) for x in os.getloadavg()],
         "machine": machine_info(),  # at the row's end; "load" above is kept for older readers

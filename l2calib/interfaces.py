@@ -195,9 +195,10 @@ class CalibrationPolicy(ABC):
     ``action_dim`` comes from the env's ``action_spec`` (7: quaternion xyzw + translation m;
     8: + time offset s). Only where set, the training also passes ``init_time_offset_s``
     (the offset's starting mean, s) and ``rotation_start`` (an object with ``quat_xyzw`` and
-    ``sigma_deg`` per LiDAR axis: :class:`l2calib.train.rotation_start.RotationStart`), so a
-    plugin that takes neither still works where they are not set
-    (``train.rotation_from_rates: off``).
+    ``sigma_deg`` per LiDAR axis: :class:`l2calib.train.rotation_start.RotationStart`) and
+    ``translation_start`` (``translation_m`` and ``sigma_m`` per IMU axis:
+    :class:`l2calib.train.lever_start.LeverStart`), so a plugin that takes none of them still
+    works where they are not set (``train.rotation_from_rates: off``).
 
     Attributes:
         actor: TorchRL ``ProbabilisticActor`` reading ``"observation"`` and writing ``"action"``

@@ -160,8 +160,9 @@ def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, lis
             f"planar, yaw-dominant motion (a ground vehicle?): {motion.describe()}. The lever "
             "arm's vertical component cannot be determined from it: calibrate holds it at "
             "policy.prior's value (else 0 m, named as not estimated), searches the rest and "
-            "trains with the ground-vehicle settings (no hand-over, 6 refinement and 8 Newton "
-            "polish rounds: l2calib.train.vertical_hold.PLANAR_TRAIN); the selection keeps up "
+            "trains with the ground-vehicle settings (8 Newton polish rounds; from no rotation "
+            "guess also no hand-over and 6 refinement rounds: l2calib.train.vertical_hold); "
+            "the selection keeps up "
             f"to selection.planar_budget_s ({budget:g} s by default) of the drive in windows of "
             f"at least {window:g} s",
             "give policy.prior with the height difference from a drawing (translation_m), or "

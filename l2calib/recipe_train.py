@@ -74,6 +74,14 @@ class TrainConfig(StrictModel):
         "fit (l2calib.train.rotation_start); off = from a uniform rotation. Restarts always "
         "start from no guess",
     )
+    translation_from_accelerations: Literal["start", "off"] = Field(
+        "start",
+        description="without policy.prior, once the rotation starts from the rates: start = "
+        "PPO's first attempt starts its translation at the lever arm fitted to the references' "
+        "accelerations against the accelerometer (linear least squares, gravity and a bias per "
+        "segment), with a spread per axis from the fit (l2calib.train.lever_start); off = at "
+        "zero with policy.options.init_translation_sigma_m",
+    )
     known_time_offset_s: float | None = Field(
         None,
         ge=-0.5,
@@ -214,7 +222,12 @@ class TrainConfig(StrictModel):
 
     uncertainty: UncertaintyConfig = Field(default_factory=UncertaintyConfig)
 
-    @field_validator("hold_vertical_translation", "rotation_from_rates", mode="before")
+    @field_validator(
+        "hold_vertical_translation",
+        "rotation_from_rates",
+        "translation_from_accelerations",
+        mode="before",
+    )
     @classmethod
     def _yaml_on_off(cls, value: object) -> object:
         """YAML 1.1 reads an unquoted ``on`` / ``off`` as a boolean: take it as meant."""

@@ -193,13 +193,15 @@ def train_policy(
         raise TrainingError(
             "resume needs the output directory of the run to continue", fix="pass its out_dir"
         )
+    from l2calib.train.lever_start import lever_start
     from l2calib.train.offset_hold import offset_from_rates
-    from l2calib.train.rotation_start import rotation_start
+    from l2calib.train.rotation_start import rotation_start, start_offset_s
 
     say = stage or (lambda _msg: None)
     recipe, offset_method = offset_from_rates(recipe, data, say)
-    hold = _vertical_hold(recipe, data, say)
     rot_start = rotation_start(recipe, data, say)
+    t_start = lever_start(recipe, data, rot_start, start_offset_s(recipe, data), say)
+    hold = _vertical_hold(recipe, data, say, rate_start=rot_start is not None)
     where = " on Ray actors" if recipe.train.executor == "ray" else ""
     say(f"preparing the {recipe.backend.name} odometry{where}")
     t0 = time.monotonic()
@@ -216,7 +218,7 @@ def train_policy(
             again = resume and (k == 0 or (sub / CHECKPOINT_NAME).is_file())
             result_outcome = _attempt(
                 recipe, data, env, seed, sub, again, progress, say, k, hold=hold,
-                start=rot_start if k == 0 else None,
+                start=rot_start if k == 0 else None, t_start=t_start if k == 0 else None,
             )  # fmt: skip
             attempts.append((*result_outcome, seed))
             result = attempts[-1][0]
@@ -234,6 +236,8 @@ def train_policy(
             run.result.time_offset_method = offset_method
         if rot_start is not None:
             run.result.extra["rotation_start"] = rot_start.to_dict()
+        if t_start is not None:
+            run.result.extra["translation_start"] = t_start.to_dict()
         run.result.stage_s = {"odometry_preparation": prepared_s, **run.result.stage_s}
         t0 = time.monotonic()
         _add_trajectories(run, env, np.eye(4) if before is None else before)
@@ -271,8 +275,13 @@ def _add_trajectories(run: TrainedRun, env, before: np.ndarray) -> None:
     ]  # fmt: skip
 
 
-def _vertical_hold(recipe: Recipe, data: PreparedData, say: Callable[[str], None]):
-    """The vertical lever-arm hold for this data (``train.hold_vertical_translation``) or None."""
+def _vertical_hold(
+    recipe: Recipe, data: PreparedData, say: Callable[[str], None], rate_start: bool = False
+):
+    """The vertical lever-arm hold for this data (``train.hold_vertical_translation``) or None.
+
+    ``rate_start``: the first attempt starts at the rate rotation (the settings it is told).
+    """
     from l2calib.train.vertical_hold import decide_hold, planar_train_settings
 
     hold = decide_hold(recipe.train, recipe.policy.prior, [s.imu for s in data.segments])
@@ -280,14 +289,25 @@ def _vertical_hold(recipe: Recipe, data: PreparedData, say: Callable[[str], None
         value = f"{100 * hold.value_m:.1f} cm" + (
             " (policy.prior)" if hold.source == "prior" else " (no prior: not a measurement)"
         )
-        changed = planar_train_settings(recipe.train)[1]
-        also = "; ".join(f"train.{k}: {'null' if v is None else v}" for k, v in changed.items())
+        first = planar_train_settings(recipe.train, rate_start)[1]
+        later = planar_train_settings(recipe.train)[1]  # a restart starts from no rotation guess
+        restarts = {k: v for k, v in later.items() if k not in first}
+        also = "; ".join(
+            [_settings_text(first)] * bool(first)
+            + [f"restarts (from no rotation guess) also {_settings_text(restarts)}"]
+            * bool(restarts)
+        )
         say(
             f"planar motion ({hold.motion.describe()}): the lever arm's vertical component "
             f"cannot be determined from it and is held at {value}"
             + (f"; weak-data settings {also} (set them in the recipe to override)" if also else "")
         )
     return hold
+
+
+def _settings_text(settings: dict[str, Any]) -> str:
+    """``train.key: value, ...`` as a recipe would spell them."""
+    return ", ".join(f"train.{k}: {'null' if v is None else v}" for k, v in settings.items())
 
 
 def _locate_checkpoint(exc: Interrupted, out_dir: Path, attempt: int) -> None:
@@ -354,12 +374,14 @@ def _attempt(
     attempt: int = 0,
     hold: Any | None = None,
     start: Any | None = None,
+    t_start: Any | None = None,
 ) -> tuple[CalibrationResult, Any]:
     """One PPO run from scratch with ``seed``, its refinement and its resolution probe.
 
     ``attempt`` numbers the run (0: the first, k: restart k) in what it tells the user;
     ``hold`` is the env's vertical lever-arm hold (the result carries the held value);
-    ``start`` the rotation start from the rates (:mod:`l2calib.train.rotation_start`) or None.
+    ``start`` the rotation start from the rates (:mod:`l2calib.train.rotation_start`) or None,
+    ``t_start`` the translation start from the accelerations (:mod:`l2calib.train.lever_start`).
     """
     from l2calib.assess import sensitivity
     from l2calib.assess.refine import refine
@@ -373,7 +395,7 @@ def _attempt(
     if hold is not None:  # planar motion: the weak-data settings, unless the recipe sets them
         from l2calib.train.vertical_hold import planar_train_settings
 
-        cfg, planar_changed = planar_train_settings(cfg)
+        cfg, planar_changed = planar_train_settings(cfg, rate_start=start is not None)
     data_s = sum(s.duration_s for s in data.segments)
     if cfg.coarse_to_fine and data_s > 0:  # never fewer than coarse_min_data_s seconds
         floor = min(1.0, cfg.coarse_min_data_s / data_s)
@@ -389,6 +411,7 @@ def _attempt(
         seed=seed,
         **({} if offset0 is None else {"init_time_offset_s": offset0}),
         **({} if start is None else {"rotation_start": start}),
+        **({} if t_start is None else {"translation_start": t_start}),
     )
     fingerprint = recipe_fingerprint(recipe.model_dump(mode="json"), data.identity())
     trainer = PpoTrainer(policy, env, cfg, out_dir, fingerprint, hold=hold)

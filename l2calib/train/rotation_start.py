@@ -151,8 +151,8 @@ def rotation_from_rates(
     seq_of = {s.name: s.sequence for s in segments}
     pairs, seen = [], set()
     for ref in references:
-        sim = imu.get(seq_of.get(ref.segment, ""))
-        if ref.constrains != "pose" or sim is None or len(ref.trajectory) < 3:
+        samples = imu.get(seq_of.get(ref.segment, ""))
+        if ref.constrains != "pose" or samples is None or len(ref.trajectory) < 3:
             continue
         if id(ref.trajectory) in seen:  # one trajectory shared by several segments: once
             continue
@@ -164,9 +164,9 @@ def rotation_from_rates(
         w_lidar = Rotation.from_matrix(rel).as_rotvec() / dt[:, None]
         shift = int(round(time_offset_s * NS_PER_S))
         a, b = traj.stamps_ns[:-1] + shift, traj.stamps_ns[1:] + shift
-        inside = (a >= sim.stamps_ns[0]) & (b <= sim.stamps_ns[-1]) & (dt > 0)
+        inside = (a >= samples.stamps_ns[0]) & (b <= samples.stamps_ns[-1]) & (dt > 0)
         if inside.sum() >= 3:
-            w_imu = mean_gyro(sim.stamps_ns, sim.gyro_rad_s, a[inside], b[inside])
+            w_imu = mean_gyro(samples.stamps_ns, samples.gyro_rad_s, a[inside], b[inside])
             pairs.append((w_lidar[inside], w_imu))
     n = sum(len(p[0]) for p in pairs)
     if n < MIN_INTERVALS:
@@ -202,13 +202,9 @@ def rotation_start(recipe: Any, data: Any, say: Callable[[str], None]) -> Rotati
     """
     if recipe.train.rotation_from_rates == "off" or recipe.policy.prior is not None:
         return None
-    from l2calib.training import offset_start_s
 
-    train = recipe.train  # the offset the odometry runs at: held, else where its estimate starts
-    offset = train.known_time_offset_s
-    if offset is None:
-        offset = offset_start_s(train, data.time_offset_hint_s)
-    start = rotation_from_rates(data.references, data.segments, data.sequences, offset or 0.0)
+    offset = start_offset_s(recipe, data)
+    start = rotation_from_rates(data.references, data.segments, data.sequences, offset)
     if start is None:
         msg = (
             "the references' rotation rates do not pin the extrinsic rotation (too few pose "
@@ -219,3 +215,17 @@ def rotation_start(recipe: Any, data: Any, say: Callable[[str], None]) -> Rotati
     data.notes.append(msg)
     say(msg)
     return start
+
+
+def start_offset_s(recipe: Any, data: Any) -> float:
+    """The time offset the starts are fitted at (s).
+
+    The one the odometry runs at: held, else where its estimate starts.
+    """
+    from l2calib.training import offset_start_s
+
+    train = recipe.train
+    offset = train.known_time_offset_s
+    if offset is None:
+        offset = offset_start_s(train, data.time_offset_hint_s)
+    return offset or 0.0

@@ -122,31 +122,42 @@ def decide_hold(train: Any, prior: Any | None, imus: list[Any]) -> VerticalHold 
     return VerticalHold(tuple(float(v) for v in axis), value, source, motion)
 
 
-#: Training settings for planar motion, unless the recipe sets them: PPO runs its budget (no
-#: hand-over) and the refinement climbs 6 rounds. With the hold and the default hand-over, PPO
-#: handed over after 78 iterations on the simulator's ground vehicle and the refinement left
-#: 1.32 deg (gt reference, training seed 0; a scratch run, not stored); with these settings the
-#: same seed gave 0.23 deg (benchmarks/results/calibration.json, "ugv all"). Without the hold,
-#: the same two settings had measured 0.26 against 0.35 deg over three seeds
-#: (benchmarks/results/speed.md, "today" vs "fast"). Then 8 rounds of the Newton polish from a
-#: quarter-width stencil: rotation and lever-arm errors compensate along a ridge of the planar
-#: reward that the per-axis refinement stops on (issue 27, docs/backends.md); on "ugv all"
-#: (three drives, gt reference, training seeds 0-2) x / y went from 2.43 / 1.01, 0.99 / 0.30,
-#: 1.76 / 0.97 cm and 0.19-0.77 deg to 0.07 / 1.56, 0.95 / 0.71, 0.76 / 0.66 cm and 0.34,
-#: 0.07, 0.02 deg, for 816 more evaluations.
-PLANAR_TRAIN = {
-    "handover_rotation_sigma_deg": None,
-    "refine_rounds": 6,
+#: Training settings for planar motion, unless the recipe sets them: 8 rounds of the Newton
+#: polish from a quarter-width stencil. Rotation and lever-arm errors compensate along a ridge
+#: of the planar reward that the per-axis refinement stops on (issue 27, docs/backends.md); on
+#: "ugv all" (three drives, gt reference, training seeds 0-2) x / y went from 2.43 / 1.01,
+#: 0.99 / 0.30, 1.76 / 0.97 cm and 0.19-0.77 deg to 0.07 / 1.56, 0.95 / 0.71, 0.76 / 0.66 cm and
+#: 0.34, 0.07, 0.02 deg, for 816 more evaluations.
+PLANAR_TRAIN: dict[str, Any] = {
     "polish_rounds": 8,
     "polish_first_scale": 0.25,
 }
+#: Also when PPO's rotation starts uniform (a restart, ``train.rotation_from_rates: off``, a
+#: ``policy.prior``, or rates that do not fit): PPO runs its budget (no hand-over) and the
+#: refinement climbs 6 rounds. From a uniform start with the default hand-over, PPO handed over
+#: after 78 iterations on the simulator's ground vehicle and the refinement left 1.32 deg (gt
+#: reference, training seed 0; a scratch run, not stored); with these settings the same seed gave
+#: 0.23 deg. Started at the rate rotation (:mod:`l2calib.train.rotation_start`) PPO keeps the
+#: default hand-over: on "ugv all" (seeds 1-3) it handed over after ~25 iterations, with x / y
+#: and rotation as close as running the budget for a third of the work
+#: (``benchmarks/results/speed.json``).
+PLANAR_UNIFORM_START: dict[str, Any] = {
+    "handover_rotation_sigma_deg": None,
+    "refine_rounds": 6,
+}
 
 
-def planar_train_settings(train: Any) -> tuple[Any, dict[str, Any]]:
-    """``train`` with :data:`PLANAR_TRAIN` where the recipe left them at their defaults.
+def planar_train_settings(train: Any, rate_start: bool = False) -> tuple[Any, dict[str, Any]]:
+    """``train`` with the planar settings where the recipe left them at their defaults.
+
+    Args:
+        train: The recipe's ``train``.
+        rate_start: PPO's rotation starts at the rate rotation (else uniform, or at a prior):
+            only :data:`PLANAR_TRAIN`; otherwise :data:`PLANAR_UNIFORM_START` too.
 
     Returns:
-        The settings to train with, and what was changed (empty when the recipe set both).
+        The settings to train with, and what was changed (empty when the recipe set them all).
     """
-    changed = {k: v for k, v in PLANAR_TRAIN.items() if k not in train.model_fields_set}
+    wanted = PLANAR_TRAIN if rate_start else {**PLANAR_UNIFORM_START, **PLANAR_TRAIN}
+    changed = {k: v for k, v in wanted.items() if k not in train.model_fields_set}
     return train.model_copy(update=changed), changed

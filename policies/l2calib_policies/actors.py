@@ -217,6 +217,10 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         rotation_start: Without a prior, where the rotation starts: an object with
             ``quat_xyzw`` (4) and ``sigma_deg`` (3, per LiDAR axis), e.g.
             :class:`l2calib.train.rotation_start.RotationStart`; ``None``: uniform.
+        translation_start: Without a prior, where the translation starts: an object with
+            ``translation_m`` (3, ``t_imu_lidar``) and ``sigma_m`` (3, per IMU axis), e.g.
+            :class:`l2calib.train.lever_start.LeverStart`; ``None``: zero with
+            ``options.init_translation_sigma_m``.
 
     Attributes:
         actor: ``ProbabilisticActor`` reading ``"observation"``, writing ``"action"`` and
@@ -233,6 +237,7 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         seed: int = 0,
         init_time_offset_s: float = 0.0,
         rotation_start: Any | None = None,
+        translation_start: Any | None = None,
     ) -> None:
         super().__init__()
         if action_dim not in (7, 8):
@@ -245,8 +250,9 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         self.kind, self.options, self.action_dim = kind, options, action_dim
         self.time_offset = action_dim == 8
         self.params_net = self._make_params(
-            kind, options, prior, init_time_offset_s, None if prior else rotation_start
-        )
+            kind, options, prior, init_time_offset_s, None if prior else rotation_start,
+            None if prior else translation_start,
+        )  # fmt: skip
         keys = [*_KEYS[kind], "translation_loc", "translation_scale"]
         module = TensorDictModule(self.params_net, in_keys=[OBSERVATION_KEY], out_keys=keys)
         self.actor = ProbabilisticActor(
@@ -288,10 +294,14 @@ class ExtrinsicPolicy(nn.Module, CalibrationPolicy):
         prior: ExtrinsicPrior | None,
         offset0_s: float = 0.0,
         start: Any | None = None,
+        t_start: Any | None = None,
     ) -> nn.Module:
         k = self.action_dim - 4
         loc0 = torch.zeros(k, dtype=F64)
         sigma0 = torch.full((k,), o.init_translation_sigma_m, dtype=F64)
+        if t_start is not None:  # per-axis σ (IMU axes) from the acceleration fit
+            loc0[:3] = _t(t_start.translation_m)
+            sigma0[:3] = torch.clamp(_t(t_start.sigma_m), min=2 * o.min_translation_sigma_m)
         if prior is not None:
             loc0[:3] = _t(prior.translation_m)
             sigma0[:3] = prior.sigma_translation_m

@@ -2,7 +2,8 @@
 
 Entry-point group ``l2calib.policies``: ``bingham`` (L2Calib) and ``gaussian`` (L2Calib-g).
 ``spec.build(options, action_dim=7|8, prior=ExtrinsicPrior|None, seed=int)`` (optionally
-``init_time_offset_s=float``, ``rotation_start=RotationStart``) returns a
+``init_time_offset_s=float``, ``rotation_start=RotationStart``,
+``translation_start=LeverStart``) returns a
 :class:`l2calib_policies.actors.ExtrinsicPolicy`.
 """
 

@@ -100,15 +100,21 @@ def test_recipe_trains_two_iterations(name, tmp_path):
     # the recipe's own reference (ct-lidar for the MID-360) tracked: no fallback was needed
     assert out["reference"]["sources"] == [recipe.reference.name]
     # the only notes: where the offset is held or its estimation starts, when the rates tell,
-    # and where the rotation starts (l2calib.train.rotation_start; always one of the two)
+    # where the rotation starts (l2calib.train.rotation_start; always one of the two) and,
+    # from a rotation start, where the translation starts (l2calib.train.lever_start)
     offset_notes = [
         n for n in out["reference"]["notes"]
         if "the offset's estimation starts there" in n or "the offset is held there" in n
     ]  # fmt: skip
     start_notes = [n for n in out["reference"]["notes"] if "rotation rates" in n]
+    lever_notes = [n for n in out["reference"]["notes"] if "accelerations" in n]
     assert len(start_notes) == 1
-    assert len(offset_notes) + 1 == len(out["reference"]["notes"])
+    rotated = "start at" in start_notes[0]  # a start was found: calibration.yaml records it
+    assert len(lever_notes) == (1 if rotated else 0)
+    assert len(offset_notes) + 1 + len(lever_notes) == len(out["reference"]["notes"])
     assert len(offset_notes) <= (1 if timed else 0)
-    if "start at" in start_notes[0]:  # a start was found: calibration.yaml records it
+    if rotated:
         assert len(out["rotation_start"]["sigma_deg"]) == 3
+    if lever_notes and "start at" in lever_notes[0]:
+        assert len(out["translation_start"]["sigma_m"]) == 3
     assert (tmp_path / "out" / "report.png").stat().st_size > 10_000

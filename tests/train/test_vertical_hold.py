@@ -135,7 +135,7 @@ class _Stamps:
 def test_planar_data_trains_with_the_weak_data_settings_unless_the_recipe_sets_them():
     from l2calib.train.vertical_hold import planar_train_settings
 
-    cfg, changed = planar_train_settings(TrainConfig())
+    cfg, changed = planar_train_settings(TrainConfig())  # PPO starts from no rotation guess
     assert cfg.handover_rotation_sigma_deg is None and cfg.refine_rounds == 6
     assert cfg.polish_rounds == 8 and cfg.polish_first_scale == 0.25
     assert set(changed) == {
@@ -146,6 +146,18 @@ def test_planar_data_trains_with_the_weak_data_settings_unless_the_recipe_sets_t
     assert cfg.refine_rounds == 9 and cfg.handover_rotation_sigma_deg is None
     assert cfg.polish_rounds == 0  # the user's "off" stays off
     assert set(changed) == {"handover_rotation_sigma_deg", "polish_first_scale"}
+
+
+def test_a_run_started_at_the_rate_rotation_keeps_the_hand_over_on_planar_data():
+    from l2calib.train.vertical_hold import planar_train_settings
+
+    default = TrainConfig()
+    cfg, changed = planar_train_settings(default, rate_start=True)
+    assert cfg.handover_rotation_sigma_deg == default.handover_rotation_sigma_deg is not None
+    assert cfg.refine_rounds == default.refine_rounds
+    assert set(changed) == {"polish_rounds", "polish_first_scale"}
+    mine = TrainConfig.model_validate({"handover_rotation_sigma_deg": None})
+    assert planar_train_settings(mine, rate_start=True)[0].handover_rotation_sigma_deg is None
 
 
 @pytest.mark.parametrize("text, expected", [("off", "off"), ("on", "on"), ("auto", "auto")])
