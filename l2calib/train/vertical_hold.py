@@ -138,9 +138,11 @@ PLANAR_TRAIN: dict[str, Any] = {
 #: after 78 iterations on the simulator's ground vehicle and the refinement left 1.32 deg (gt
 #: reference, training seed 0; a scratch run, not stored); with these settings the same seed gave
 #: 0.23 deg. Started at the rate rotation (:mod:`l2calib.train.rotation_start`) PPO keeps the
-#: default hand-over: on "ugv all" (seeds 1-3) it handed over after ~25 iterations, with x / y
-#: and rotation as close as running the budget for a third of the work
-#: (``benchmarks/results/speed.json``).
+#: default hand-over: on "ugv all" (training seeds 1, 2) it handed over after 25 and 14
+#: iterations at x / y 1.44 / 0.21 cm and 0.068 / 0.120 deg with 1,948 / 1,596 evaluations
+#: (the budget's settings: 0.95 / 0.71 and 0.76 / 0.66 cm, 0.07 / 0.02 deg with 5,759); with
+#: the translation start too, after one iteration (seed 1: 0.89 / 0.29 cm, 0.037 deg, 1,180)
+#: (``benchmarks/results/experiments/speed_starts.json``).
 PLANAR_UNIFORM_START: dict[str, Any] = {
     "handover_rotation_sigma_deg": None,
     "refine_rounds": 6,
