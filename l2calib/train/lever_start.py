@@ -148,7 +148,10 @@ def lever_arm_from_accelerations(
     time_offset_s: float,
     half_width_s: float = HALF_WIDTH_S,
 ) -> LeverStart | None:
-    """The lever arm from every pose reference's accelerations, or ``None`` if too few windows.
+    """The lever arm from every pose reference's accelerations, or ``None`` if untrustworthy.
+
+    ``None``: fewer than :data:`MIN_WINDOWS` windows, or a residual above
+    :data:`MAX_RELATIVE_RESIDUAL`.
 
     Args:
         references: ``ReferenceTrajectory`` per segment (those with full LiDAR poses count).
@@ -158,16 +161,11 @@ def lever_arm_from_accelerations(
         time_offset_s: ``t_imu = t_lidar + offset`` (s).
         half_width_s: The hat kernel's half-width (s).
     """
-    imu = {s.name: s.imu for s in sequences}
-    seq_of = {s.name: s.sequence for s in segments}
+    from l2calib.train.rotation_start import pose_references
+
     shift = int(round(time_offset_s * NS_PER_S))
-    blocks, seen = [], set()
-    for ref in references:
-        samples = imu.get(seq_of.get(ref.segment, ""))
-        traj = ref.trajectory
-        if ref.constrains != "pose" or samples is None or id(traj) in seen or len(traj) < 7:
-            continue
-        seen.add(id(traj))
+    blocks = []
+    for traj, samples in pose_references(references, segments, sequences, 7):
         period = float(np.median(np.diff(traj.stamps_ns))) / NS_PER_S
         step = max(1, int(round(half_width_s / period)))
         rows = _kernel_rows(traj, samples, R_imu_lidar, shift, step)

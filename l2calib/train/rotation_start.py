@@ -134,6 +134,25 @@ def fit_rotation(pairs: list[tuple[np.ndarray, np.ndarray]], iterations: int = 4
     return R, res, S / S[0]
 
 
+def pose_references(references: list, segments: list, sequences: list, min_poses: int):
+    """``(trajectory, imu)`` of every full-pose reference with ``min_poses`` poses or more.
+
+    A trajectory shared by several segments (one reference for a whole recording) comes once,
+    with its sequence's IMU samples.
+    """
+    imu = {s.name: s.imu for s in sequences}
+    seq_of = {s.name: s.sequence for s in segments}
+    seen = set()
+    for ref in references:
+        samples = imu.get(seq_of.get(ref.segment, ""))
+        traj = ref.trajectory
+        if ref.constrains != "pose" or samples is None or len(traj) < min_poses:
+            continue
+        if id(traj) not in seen:
+            seen.add(id(traj))
+            yield traj, samples
+
+
 def rotation_from_rates(
     references: list, segments: list, sequences: list, time_offset_s: float
 ) -> RotationStart | None:
@@ -147,17 +166,8 @@ def rotation_from_rates(
     """
     from scipy.spatial.transform import Rotation
 
-    imu = {s.name: s.imu for s in sequences}
-    seq_of = {s.name: s.sequence for s in segments}
-    pairs, seen = [], set()
-    for ref in references:
-        samples = imu.get(seq_of.get(ref.segment, ""))
-        if ref.constrains != "pose" or samples is None or len(ref.trajectory) < 3:
-            continue
-        if id(ref.trajectory) in seen:  # one trajectory shared by several segments: once
-            continue
-        seen.add(id(ref.trajectory))
-        traj = ref.trajectory
+    pairs = []
+    for traj, samples in pose_references(references, segments, sequences, 3):
         R = Rotation.from_quat(traj.quat_xyzw).as_matrix()
         dt = np.diff(traj.stamps_ns) / NS_PER_S
         rel = np.einsum("nji,njk->nik", R[:-1], R[1:])  # R_iᵀ R_{i+1}: the LiDAR-frame step
