@@ -13,7 +13,7 @@ demo: install
 	$(BIN)/l2calib demo --force
 
 test: install
-	$(BIN)/python -m pytest -q
+	$(BIN)/python -m pytest -q --durations=15
 
 bench: install
 	$(BIN)/python -m benchmarks

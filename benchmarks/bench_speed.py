@@ -136,14 +136,16 @@ def summary(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def render(results: dict[str, Any]) -> str:
     """The markdown of a results JSON: every row, then the per-case summary."""
     lines = [
-        "| case | config | seed | t cm | r deg | wall s | evals | candidate-scans | stop |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| case | config | seed | t cm | r deg | wall s | load | evals | candidate-scans | date "
+        "| stop |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in sorted(results["rows"], key=lambda r: (r["case"], r["seed"], r["config"])):
+        load = (r["machine"].get("load") or ["?"])[0]  # 1-min load average at the row's end
         lines.append(
             f"| {r['case']} | {r['config']} | {r['seed']} | {_judged(r, 't_err_judged_cm'):.2f} | "
-            f"{r['r_err_deg']:.3f} | {r['wall_s']:.0f} | {r['evaluations']} | "
-            f"{r['candidate_scans']:,} | {r['stop']} |"
+            f"{r['r_err_deg']:.3f} | {r['wall_s']:.0f} | {load} | {r['evaluations']} | "
+            f"{r['candidate_scans']:,} | {r['machine'].get('date', '?')} | {r['stop']} |"
         )
     lines += [
         "",
@@ -162,9 +164,11 @@ def render(results: dict[str, Any]) -> str:
     cpus = sorted({r["machine"]["cpu"] for r in results["rows"]})
     lines += [
         "",
-        f"Machines: {', '.join(cpus)} (2 cores; each row records its load). Candidate-scans and "
-        "errors do not depend on the load; wall times do (rows run side by side with other "
-        "benchmarks are slower).",
+        f"Machines: {', '.join(cpus)} (2 cores). Candidate-scans and errors do not depend on the "
+        "load; wall times do (rows run side by side with other benchmarks are slower). t cm is "
+        "the error over the estimated axes (a held vertical lever arm left out; `today` rows "
+        "before that field: all three). The `today` rows are issue 23's baseline: the settings "
+        "before its changes, run on the code of their date.",
     ]
     return "\n".join(lines) + "\n"
 

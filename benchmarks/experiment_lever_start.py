@@ -29,8 +29,12 @@ DEFAULT_CASES = [
 ]  # fmt: skip
 
 
-def lever_row(case) -> dict[str, object]:
-    """Both starts on the case's prepared data, against the truth."""
+def lever_row(case, half_widths: list[float] | None = None) -> dict[str, object]:
+    """Both starts on the case's prepared data, against the truth.
+
+    ``half_widths``: also fit the lever arm with each of these kernel half-widths (s), rejected
+    fits included (``half_width_fits``: error, fit σ and relative residual each).
+    """
     from scipy.spatial.transform import Rotation
 
     from l2calib.train.lever_start import lever_start
@@ -51,6 +55,8 @@ def lever_row(case) -> dict[str, object]:
     if rot is not None:
         R = Rotation.from_quat(rot.quat_xyzw).as_matrix()
         row["rotation_error_deg"] = round(float(np.degrees(Rotation.from_matrix(T[:3, :3].T @ R).magnitude())), 4)  # fmt: skip  # noqa: E501
+    if half_widths and rot is not None:
+        row["half_width_fits"] = _half_width_fits(data, rot, offset, T, half_widths)
     if lever is None:
         return {**row, "lever": None}
     err = np.array(lever.translation_m) - T[:3, 3]
@@ -65,17 +71,48 @@ def lever_row(case) -> dict[str, object]:
     }
 
 
+def _half_width_fits(data, rot, offset: float, T: np.ndarray, half_widths: list[float]):
+    """The lever-arm fit at each kernel half-width, its rejection rule switched off."""
+    from unittest import mock
+
+    from scipy.spatial.transform import Rotation
+
+    from l2calib.train import lever_start as ls
+
+    R = Rotation.from_quat(rot.quat_xyzw).as_matrix()
+    out = []
+    for h in half_widths:
+        with mock.patch.object(ls, "MAX_RELATIVE_RESIDUAL", np.inf):
+            fit = ls.lever_arm_from_accelerations(
+                data.references, data.segments, data.sequences, R, offset, half_width_s=h
+            )
+        if fit is None:
+            out.append({"half_width_s": h, "fit": None})
+            continue
+        err = np.array(fit.translation_m) - T[:3, 3]
+        out.append({
+            "half_width_s": h, "error_cm": np.round(100 * err, 2).tolist(),
+            "fit_sigma_cm": np.round(100 * np.array(fit.fit_sigma_m), 2).tolist(),
+            "relative_residual": round(fit.relative_residual, 3), "windows": fit.windows,
+        })  # fmt: skip
+    return out
+
+
 def main() -> None:
     """Runs the cases, prints a line each, writes the JSON."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=DEFAULT_CASES)
     parser.add_argument("--out", type=Path, default=OUT)
+    parser.add_argument(
+        "--half-widths", type=float, nargs="*", default=None,
+        help="also fit with these kernel half-widths (s), rejected fits included",
+    )  # fmt: skip
     args = parser.parse_args()
     torch.set_default_dtype(torch.float64)
     rows = []
     for name in args.cases:
         case = next(c for c in cases(quick=False) if c.name == name)
-        rows.append({"case": name, **lever_row(case)})
+        rows.append({"case": name, **lever_row(case, args.half_widths)})
         print(rows[-1], flush=True)
         args.out.parent.mkdir(parents=True, exist_ok=True)
         args.out.write_text(json.dumps({"rows": rows, "machine": machine_info()}, indent=1))

@@ -77,15 +77,22 @@ def _check(result, folder: Path) -> dict[str, dict[str, str]]:
     return rows
 
 
-def test_local_batch_runs_every_job_and_a_bad_one_fails_alone(bags, tmp_path):
-    result = CliRunner().invoke(app, ["batch", str(_manifest(tmp_path, bags, "local"))])
-    rows = _check(result, tmp_path)
+@pytest.fixture(scope="module")
+def local_batch(bags, tmp_path_factory):
+    """The three jobs run locally once: ``(folder, CLI result)`` (the Ray test compares)."""
+    folder = tmp_path_factory.mktemp("local")
+    return folder, CliRunner().invoke(app, ["batch", str(_manifest(folder, bags, "local"))])
+
+
+def test_local_batch_runs_every_job_and_a_bad_one_fails_alone(local_batch):
+    folder, result = local_batch
+    rows = _check(result, folder)
     assert "batch summary" in result.output and "missing.bag" in result.output
     # --resume keeps the finished jobs as they are (nothing is run again)
-    before = (tmp_path / "out/short/calibration.yaml").stat().st_mtime_ns
-    again = CliRunner().invoke(app, ["batch", str(tmp_path / "batch.yaml"), "--resume"])
-    assert (tmp_path / "out/short/calibration.yaml").stat().st_mtime_ns == before
-    assert _summary(tmp_path / "summary.csv")["short"]["tx_m"] == rows["short"]["tx_m"]
+    before = (folder / "out/short/calibration.yaml").stat().st_mtime_ns
+    again = CliRunner().invoke(app, ["batch", str(folder / "batch.yaml"), "--resume"])
+    assert (folder / "out/short/calibration.yaml").stat().st_mtime_ns == before
+    assert _summary(folder / "summary.csv")["short"]["tx_m"] == rows["short"]["tx_m"]
     assert again.exit_code == 1  # the missing bag is still missing
 
 
@@ -93,14 +100,12 @@ def test_local_batch_runs_every_job_and_a_bad_one_fails_alone(bags, tmp_path):
     os.environ.get("L2CALIB_REQUIRE_RAY") != "1" and importlib.util.find_spec("ray") is None,
     reason="the optional extra: pip install 'l2calib[ray]'",
 )
-def test_ray_batch_gives_the_local_results(bags, tmp_path):
+def test_ray_batch_gives_the_local_results(bags, local_batch, tmp_path):
     """The same jobs as Ray tasks on a local Ray instance: the same extrinsics as locally."""
-    local, remote = tmp_path / "local", tmp_path / "ray"
-    for folder, executor in ((local, "local"), (remote, "ray")):
-        folder.mkdir()
-        result = CliRunner().invoke(app, ["batch", str(_manifest(folder, bags, executor))])
-        _check(result, folder)
-    a, b = _summary(local / "summary.csv")["short"], _summary(remote / "summary.csv")["short"]
+    local, _ = local_batch
+    result = CliRunner().invoke(app, ["batch", str(_manifest(tmp_path, bags, "ray"))])
+    _check(result, tmp_path)
+    a, b = _summary(local / "summary.csv")["short"], _summary(tmp_path / "summary.csv")["short"]
     keys = ("tx_m", "ty_m", "tz_m", "roll_deg", "pitch_deg", "yaw_deg")
     np.testing.assert_array_equal([a[k] for k in keys], [b[k] for k in keys])
 

@@ -24,6 +24,8 @@ Measured on the simulator's cases (``python -m benchmarks.experiment_lever_start
 ``benchmarks/results/experiments/lever_start.json``; start minus truth): 0.01 cm hand-held,
 0.30 cm on three uav flights, 0.34 cm on three ground-vehicle drives and 0.07 cm on one VLP-32C
 drive with the exact LiDAR trajectory; 0.28 cm hand-held from the LiDAR alone (``ct-lidar``).
+Where a 16/32-beam ``ct-lidar`` reference of a slow drive is too noisy for the ±0.25 s kernel,
+a wider one is taken (:data:`WIDER_HALF_WIDTHS_S`).
 PPO, started there and at the rate rotation, is narrow enough for the refinement after its
 first iteration (issue 23: ``benchmarks/results/experiments/speed_starts.json``).
 
@@ -58,6 +60,12 @@ MAX_RELATIVE_RESIDUAL = 0.5
 #: (σ_p √6 / h² ≈ 0.02 m/s² at 2 mm and 0.25 s), short enough to keep a hand-held rig's
 #: rotation (D²[R_wl] grows like ω² + ω̇).
 HALF_WIDTH_S = 0.25
+#: Wider kernels tried in turn when the one before is rejected. Both sides of the fit are the
+#: same kernel's averages, so any width is exact; a wider one averages a noisier reference's
+#: position noise down by 1/h² and keeps a slow vehicle's accelerations (a 16-beam ct-lidar
+#: reference on a 60 s drive: residual 94 % of the signal at 0.25 s, 36 % at 0.75 s, x / y
+#: 0.1 / 2.1 cm from the truth; ``python -m benchmarks.experiment_lever_start --half-widths``).
+WIDER_HALF_WIDTHS_S = (0.5, 0.75, 1.0)
 
 
 @dataclass(frozen=True)
@@ -71,6 +79,7 @@ class LeverStart:
         relative_residual: RMS residual over the RMS of the kernel-averaged specific force
             minus its per-segment mean (how much of the motion the model leaves unexplained).
         windows: Kernel windows used.
+        half_width_s: The kernel's half-width (s).
     """
 
     translation_m: tuple[float, float, float]
@@ -78,14 +87,15 @@ class LeverStart:
     fit_sigma_m: tuple[float, float, float]
     relative_residual: float
     windows: int
+    half_width_s: float = HALF_WIDTH_S
 
     def describe(self) -> str:
         """One line for the console."""
         sig = " / ".join(f"{100 * v:.1f}" for v in self.sigma_m)
         return (
             f"the references' accelerations against the accelerometer put the lever arm's start "
-            f"at σ {sig} cm (IMU x / y / z; {self.windows} windows, residual "
-            f"{100 * self.relative_residual:.1f} % of the specific force's variation)"
+            f"at σ {sig} cm (IMU x / y / z; {self.windows} windows of ±{self.half_width_s:g} s, "
+            f"residual {100 * self.relative_residual:.1f} % of the specific force's variation)"
         )
 
     def to_dict(self) -> dict[str, Any]:
@@ -96,6 +106,7 @@ class LeverStart:
             "fit_sigma_m": [round(float(v), 5) for v in self.fit_sigma_m],
             "relative_residual": round(float(self.relative_residual), 4),
             "windows": int(self.windows),
+            "half_width_s": float(self.half_width_s),
             "meaning": "PPO's first attempt started its translation here (the references' "
             "accelerations against the accelerometer at the rate rotation); restarts start "
             "from zero",
@@ -207,7 +218,25 @@ def lever_arm_from_accelerations(
         tuple(float(v) for v in fit),  # type: ignore[arg-type]
         relative,
         n,
+        half_width_s,
     )
+
+
+def widening_fit(
+    references: list, segments: list, sequences: list, R_imu_lidar: np.ndarray, offset_s: float
+) -> LeverStart | None:
+    """The lever-arm fit at the narrowest kernel half-width that is accepted.
+
+    :func:`lever_arm_from_accelerations` at :data:`HALF_WIDTH_S`, else at the first of
+    :data:`WIDER_HALF_WIDTHS_S` whose fit is accepted, else ``None``.
+    """
+    for h in (HALF_WIDTH_S, *WIDER_HALF_WIDTHS_S):
+        fit = lever_arm_from_accelerations(
+            references, segments, sequences, R_imu_lidar, offset_s, half_width_s=h
+        )
+        if fit is not None:
+            return fit
+    return None
 
 
 def lever_start(
@@ -232,9 +261,7 @@ def lever_start(
     from scipy.spatial.transform import Rotation
 
     R = Rotation.from_quat(rotation.quat_xyzw).as_matrix()
-    start = lever_arm_from_accelerations(
-        data.references, data.segments, data.sequences, R, offset_s
-    )
+    start = widening_fit(data.references, data.segments, data.sequences, R, offset_s)
     if start is None:
         msg = (
             "the references' accelerations do not pin the lever arm (too few windows, or they "

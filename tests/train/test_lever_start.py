@@ -13,17 +13,19 @@ import torch
 
 from l2calib.data import ImuSamples
 from l2calib.interfaces import ReferenceTrajectory
-from l2calib.pipeline import PreparedData
 from l2calib.recipe import recipe_from_dict
-from l2calib.sim import SimConfig, simulate
 from l2calib.train.lever_start import (
     CAP_M,
     FLOOR_M,
+    HALF_WIDTH_S,
+    WIDER_HALF_WIDTHS_S,
     _d2,
     lever_arm_from_accelerations,
     lever_start,
+    widening_fit,
 )
 from l2calib.train.rotation_start import rotation_start
+from l2calib.trajectory import Trajectory
 
 
 def test_the_second_divided_difference_is_the_kernel_average_of_the_second_derivative():
@@ -32,21 +34,6 @@ def test_the_second_divided_difference_is_the_kernel_average_of_the_second_deriv
     # the hat kernel over (0.3, 0.5, 0.9) averages x'' = (2, 6t, 0): its mean of t is (a+b+c)/3
     got = _d2(x, (1, 2, 3), t)
     assert got == pytest.approx([2.0, 6.0 * (0.3 + 0.5 + 0.9) / 3, 0.0])
-
-
-@pytest.fixture(scope="module")
-def hand_held():
-    """10 s hand-held from the simulator, exact LiDAR poses, one 8 s segment."""
-    run = simulate(
-        SimConfig.model_validate(
-            {"duration_s": 10.0, "seed": 7, "motion": {"profile": "handheld"},
-             "lidar": {"model": "ouster-os1-16", "columns": 64}}
-        )
-    )  # fmt: skip
-    seq = run.sequence()
-    seg = seq.segment(seq.start_ns + 1_000_000_000, seq.start_ns + 9_000_000_000)
-    refs = [ReferenceTrajectory(seg.name, run.gt_lidar, "pose", "gt")]
-    return run, PreparedData([seq], [seg], refs)
 
 
 def test_the_simulators_hand_held_lever_arm_comes_within_a_few_millimetres(hand_held):
@@ -96,3 +83,27 @@ def test_the_policy_starts_at_the_lever_arm_with_its_spread(kind, hand_held):
     assert torch.allclose(t, torch.tensor(start.translation_m, dtype=t.dtype), atol=1e-9)
     sigma = policy.uncertainty().translation_sigma_m.numpy()
     assert sigma == pytest.approx(start.sigma_m, rel=0.05)  # not the 0.5 m of no guess
+
+
+def test_a_noisy_reference_widens_the_kernel_until_the_fit_is_accepted(hand_held):
+    """1 cm of white noise on the reference's positions (a 16-beam ``ct-lidar`` reference is of
+    that order): the ±0.25 s kernel's second differences drown in it and are rejected; the
+    ±0.5 s kernel averages the noise 6× further down and is taken, its σ covering its error."""
+    run, data = hand_held
+    ref = data.references[0]
+    traj = ref.trajectory
+    rng = np.random.default_rng(0)
+    noisy = Trajectory(
+        traj.stamps_ns, traj.t_world_body + rng.normal(scale=0.01, size=traj.t_world_body.shape),
+        traj.quat_xyzw,
+    )  # fmt: skip
+    refs = [ReferenceTrajectory(ref.segment, noisy, "pose", "gt")]
+    R = run.T_imu_lidar[:3, :3]
+    args = (refs, data.segments, data.sequences, R, 0.0)
+    assert lever_arm_from_accelerations(*args) is None  # at HALF_WIDTH_S
+    start = widening_fit(*args)
+    assert start is not None and start.half_width_s == WIDER_HALF_WIDTHS_S[0]
+    assert start.half_width_s > HALF_WIDTH_S and start.relative_residual <= 0.5
+    err = np.abs(np.array(start.translation_m) - run.T_imu_lidar[:3, 3])
+    assert np.all(err < np.array(start.sigma_m)) and err.max() < 0.02  # m
+    assert "±0.5 s" in start.describe() and start.to_dict()["half_width_s"] == 0.5

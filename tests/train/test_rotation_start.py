@@ -12,9 +12,7 @@ from scipy.spatial.transform import Rotation
 
 from l2calib.data import ImuSamples
 from l2calib.interfaces import ReferenceTrajectory
-from l2calib.pipeline import PreparedData
 from l2calib.recipe import recipe_from_dict
-from l2calib.sim import SimConfig, simulate
 from l2calib.train.rotation_start import (
     CAP_DEG,
     FLOOR_DEG,
@@ -107,21 +105,6 @@ def test_rates_that_do_not_follow_the_gyro_give_no_start():
     refs, segs, seqs = _data(traj, imu)
     position_only = [ReferenceTrajectory(r.segment, r.trajectory, "position", "rtk") for r in refs]
     assert rotation_from_rates(position_only, segs, seqs, 0.0) is None
-
-
-@pytest.fixture(scope="module")
-def hand_held():
-    """8 s hand-held from the simulator, exact LiDAR poses, one 6 s segment."""
-    run = simulate(
-        SimConfig.model_validate(
-            {"duration_s": 8.0, "seed": 5, "motion": {"profile": "handheld"},
-             "lidar": {"model": "ouster-os1-16", "columns": 64}}
-        )
-    )  # fmt: skip
-    seq = run.sequence()
-    seg = seq.segment(seq.start_ns + 1_000_000_000, seq.start_ns + 7_000_000_000)
-    refs = [ReferenceTrajectory(seg.name, run.gt_lidar, "pose", "gt")]
-    return run, PreparedData([seq], [seg], refs)
 
 
 def test_the_simulators_hand_held_rig_starts_within_a_tenth_of_a_degree(hand_held):
