@@ -73,8 +73,6 @@ def lever_row(case, half_widths: list[float] | None = None) -> dict[str, object]
 
 def _half_width_fits(data, rot, offset: float, T: np.ndarray, half_widths: list[float]):
     """The lever-arm fit at each kernel half-width, its rejection rule switched off."""
-    from unittest import mock
-
     from scipy.spatial.transform import Rotation
 
     from l2calib.train import lever_start as ls
@@ -82,10 +80,10 @@ def _half_width_fits(data, rot, offset: float, T: np.ndarray, half_widths: list[
     R = Rotation.from_quat(rot.quat_xyzw).as_matrix()
     out = []
     for h in half_widths:
-        with mock.patch.object(ls, "MAX_RELATIVE_RESIDUAL", np.inf):
-            fit = ls.lever_arm_from_accelerations(
-                data.references, data.segments, data.sequences, R, offset, half_width_s=h
-            )
+        fit = ls.lever_arm_from_accelerations(
+            data.references, data.segments, data.sequences, R, offset, half_width_s=h,
+            max_relative_residual=np.inf,
+        )  # fmt: skip
         if fit is None:
             out.append({"half_width_s": h, "fit": None})
             continue

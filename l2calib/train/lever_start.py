@@ -87,7 +87,7 @@ class LeverStart:
     fit_sigma_m: tuple[float, float, float]
     relative_residual: float
     windows: int
-    half_width_s: float = HALF_WIDTH_S
+    half_width_s: float
 
     def describe(self) -> str:
         """One line for the console."""
@@ -158,6 +158,7 @@ def lever_arm_from_accelerations(
     R_imu_lidar: np.ndarray,
     time_offset_s: float,
     half_width_s: float = HALF_WIDTH_S,
+    max_relative_residual: float = MAX_RELATIVE_RESIDUAL,
 ) -> LeverStart | None:
     """The lever arm from every pose reference's accelerations, or ``None`` if untrustworthy.
 
@@ -171,6 +172,8 @@ def lever_arm_from_accelerations(
         R_imu_lidar: ``[3, 3]`` the extrinsic rotation (from the rates).
         time_offset_s: ``t_imu = t_lidar + offset`` (s).
         half_width_s: The hat kernel's half-width (s).
+        max_relative_residual: The rejection limit (an experiment passes ``inf`` to see every
+            fit).
     """
     from l2calib.train.rotation_start import pose_references
 
@@ -210,7 +213,7 @@ def lever_arm_from_accelerations(
     sigma = np.clip(INFLATE * fit, FLOOR_M, CAP_M)
     scale = float(np.sqrt(np.mean(np.vstack(centred) ** 2)))
     relative = float(np.sqrt(np.mean(res**2)) / max(scale, 1e-12))
-    if relative > MAX_RELATIVE_RESIDUAL:
+    if relative > max_relative_residual:
         return None
     return LeverStart(
         tuple(float(v) for v in t),  # type: ignore[arg-type]
