@@ -18,7 +18,8 @@ selected data, and fits a parabola to each sweep. Per axis it reports:
 A variant changes one thing (comma-separated ``key=value``): ``sim=`` the IMU's corruption as
 in :mod:`benchmarks.experiment_start_bias` (``default``, ``no-turn-on``, ``white-only``,
 ``no-white``, ``off``), ``budget=`` / ``window=`` the selection (seconds), ``o.NAME=`` a
-backend option (e.g. ``o.point_sigma_m=0.2``, ``o.window_scans=10``), ``ref=case`` the
+backend option (e.g. ``o.point_sigma_m=0.2``, ``o.window_scans=10``), ``r.NAME=`` a reference
+option (e.g. ``r.scan_voxel_m=0.25`` for ct-lidar), ``ref=case`` the
 case's own reference instead of the exact trajectory; ``estimates=CASE`` also scores the stored
 calibrations of ``CASE`` (``calibration.json``) beside the truth and continues each with the
 refinement and the Newton polish (did the search stop short of the reward's peak?). Every row
@@ -75,6 +76,7 @@ def _case(name: str, spec: dict[str, str]):
         "train.hold_vertical_translation=off",
     ]
     overrides += [f"backend.options.{k[2:]}={v}" for k, v in spec.items() if k.startswith("o.")]
+    overrides += [f"reference.options.{k[2:]}={v}" for k, v in spec.items() if k.startswith("r.")]
     return dataclasses.replace(base, overrides=overrides)
 
 

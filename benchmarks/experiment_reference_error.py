@@ -20,8 +20,13 @@ present at a time:
 Per axis: where the parabola through the sweep's inner part peaks (cm / deg from the truth) —
 the bias that part of the reference error puts into any search on that reward — and the
 resolution (as in :mod:`benchmarks.experiment_planar_lever`). ``--reward position`` scores
-without the rotation term. Results: ``benchmarks/results/experiments/reference_error.json``
-(rows with the same case, kind, reward and settings are replaced).
+without the rotation term. Every row also holds, per selected segment, how far the case's
+reference is from the truth (:func:`reference_vs_truth`: position RMS, and in the LiDAR frame the
+constant offset, the orientation's fast jitter and slow drift); ``--kinds`` with no kind computes
+these alone (kind ``none``). ``--set r.NAME=V`` changes a reference option (e.g.
+``r.scan_voxel_m=0.25`` for ct-lidar), ``budget=`` / ``window=`` the selection. Results:
+``benchmarks/results/experiments/reference_error.json`` (rows with the same case, kind, reward
+and settings are replaced).
 """
 
 from __future__ import annotations
@@ -86,6 +91,43 @@ def hybrid_trajectory(truth, reference, kind: str, lowpass_half_s: float):
     return Trajectory(reference.stamps_ns, p, rot.as_quat(), "lidar", "world")
 
 
+def reference_vs_truth(truth, reference, lowpass_half_s: float) -> dict[str, Any]:
+    """How far one segment's reference is from the truth, after a rigid (Umeyama) alignment.
+
+    Args:
+        truth: the exact LiDAR :class:`~l2calib.trajectory.Trajectory` of the sequence.
+        reference: the reference trajectory of one segment (any world frame).
+        lowpass_half_s: half-width (s) of the moving average splitting slow from fast error.
+
+    Returns:
+        ``rms_pos_cm``; in the LiDAR (body) frame per axis: ``pos_mean_cm`` (a constant offset
+        the alignment cannot take), ``rot_mean_deg``, ``rot_jitter_deg`` (RMS of the part
+        faster than ``±lowpass_half_s``) and ``rot_drift_deg`` (peak-to-peak of the slower
+        part); ``duration_s``.
+    """
+    from scipy.ndimage import uniform_filter1d
+    from scipy.spatial.transform import Rotation
+
+    aligned = hybrid_trajectory(truth, reference, "ct", lowpass_half_s)
+    g = truth.interpolate(reference.stamps_ns)
+    R_g = Rotation.from_quat(g.quat_xyzw)
+    dp_world = aligned.t_world_body - g.t_world_body
+    dp_body = R_g.inv().apply(dp_world)
+    dr_body = (R_g.inv() * Rotation.from_quat(aligned.quat_xyzw)).as_rotvec()
+    step_s = float(np.median(np.diff(reference.stamps_ns))) * 1e-9
+    k = max(1, int(round(2 * lowpass_half_s / step_s)))
+    slow = uniform_filter1d(dr_body, k, axis=0, mode="nearest")
+    deg = np.rad2deg
+    return {
+        "duration_s": round(float(reference.stamps_ns[-1] - reference.stamps_ns[0]) * 1e-9, 1),
+        "rms_pos_cm": round(float(np.sqrt((dp_world**2).sum(1).mean()) * 100), 3),
+        "pos_mean_cm": np.round(dp_body.mean(0) * 100, 3).tolist(),
+        "rot_mean_deg": np.round(deg(dr_body.mean(0)), 4).tolist(),
+        "rot_jitter_deg": np.round(deg(np.sqrt(((dr_body - slow) ** 2).mean(0))), 4).tolist(),
+        "rot_drift_deg": np.round(deg(slow.max(0) - slow.min(0)), 4).tolist(),
+    }
+
+
 def sweep_kinds(
     name: str, kinds: list[str], reward: str, lowpass_half_s: float, spec: dict[str, str]
 ) -> Iterator[dict[str, Any]]:
@@ -102,6 +144,14 @@ def sweep_kinds(
     T_gt = torch.from_numpy(runs[0].T_imu_lidar)
     config = recipe.model_dump(mode="json")
     config["reward"]["kind"] = reward
+    versus = {
+        s.name: reference_vs_truth(truth[s.sequence], r.trajectory, lowpass_half_s)
+        for s, r in zip(data.segments, data.references, strict=True)
+    }
+    for seg, v in versus.items():
+        Console().print(f"{name} reference vs truth {seg}: {v}")
+    if not kinds:
+        yield _row(name, "none", reward, lowpass_half_s, spec, recipe, data, {}, versus)
     for kind in kinds:
         refs = [
             ReferenceTrajectory(
@@ -117,28 +167,39 @@ def sweep_kinds(
             fit = _fit(np.array(deltas), scores, 1.0 if i < 3 else 0.1)
             axes[axis] = {k: fit[k] for k in ("peak", "best_at", "resolution")}
         Console().print(f"{name} {kind} ({reward}): y peak {axes['y']['peak']:+.2f} cm")
-        yield {
-            "case": name,
-            "kind": kind,
-            "reward": reward,
-            "lowpass_half_s": lowpass_half_s,
-            "settings": spec,
-            "reference": recipe.reference.name,
-            "segments": [s.name for s in data.segments],
-            "data_s": round(sum(s.duration_s for s in data.segments), 1),
-            "axes": axes,
-            "machine": machine_info(),
-        }
+        yield _row(name, kind, reward, lowpass_half_s, spec, recipe, data, axes, versus)
+
+
+def _row(name, kind, reward, lowpass_half_s, spec, recipe, data, axes, versus) -> dict[str, Any]:  # noqa: ANN001
+    """One JSON row (``kind="none"``: the reference-vs-truth statistics alone, no sweep)."""
+    return {
+        "case": name,
+        "kind": kind,
+        "reward": reward,
+        "lowpass_half_s": lowpass_half_s,
+        "settings": spec,
+        "reference": recipe.reference.name,
+        "reference_options": dict(recipe.reference.options),
+        "segments": [s.name for s in data.segments],
+        "data_s": round(sum(s.duration_s for s in data.segments), 1),
+        "reference_vs_truth": versus,
+        "axes": axes,
+        "machine": machine_info(),
+    }
 
 
 def main() -> None:
     """Runs the sweeps, merges the rows into the JSON and prints the peaks."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=["ugv drive ouster-os1-16 ct-lidar"])
-    parser.add_argument("--kinds", nargs="+", default=KINDS, choices=KINDS)
+    parser.add_argument(
+        "--kinds", nargs="*", default=KINDS, choices=KINDS, help="none: the statistics alone"
+    )
     parser.add_argument("--reward", default="paper", choices=["paper", "position"])
     parser.add_argument("--lowpass-half-s", type=float, default=2.0)
-    parser.add_argument("--set", nargs="*", default=[], help="budget=S window=S (selection)")
+    parser.add_argument(
+        "--set", nargs="*", default=[], help="budget=S window=S (selection), r.NAME=V (reference)"
+    )
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
     spec = dict(s.split("=", 1) for s in args.set)
@@ -157,7 +218,7 @@ def main() -> None:
     for col in ("case", "kind", "reward", "settings", "data s", *SWEEP_AXES):
         table.add_column(col)
     for r in rows:
-        peaks = [f"{r['axes'][a]['peak']:+.2f}" for a in SWEEP_AXES]
+        peaks = [f"{r['axes'][a]['peak']:+.2f}" if r["axes"] else "-" for a in SWEEP_AXES]
         settings = ",".join(f"{k}={v}" for k, v in r["settings"].items()) or "case"
         table.add_row(r["case"], r["kind"], r["reward"], settings, str(r["data_s"]), *peaks)
     Console().print(table)

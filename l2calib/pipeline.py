@@ -136,6 +136,10 @@ def compute_references(
             has no fallback.
     """
     from l2calib.plugins import get_plugin
+    from l2calib.selection.planar import planar_motion
+
+    # a ground vehicle's drive (from the IMU's rates): ct-lidar then adds its backward pass
+    planar = planar_motion([s.imu for s in segments]).planar(recipe.train.planar_min_yaw_share)
 
     def compute(choice: PluginChoice) -> list[ReferenceTrajectory]:
         source = get_plugin("l2calib.references", choice.name).build(
@@ -147,7 +151,10 @@ def compute_references(
             estimate_time_offset=recipe.train.estimate_time_offset
             or recipe.train.known_time_offset_s is not None,
             time_offset_bound_s=time_offset_bound_s(recipe),
+            planar_motion=planar,
         )
+        for msg in getattr(source, "notes", []) if note is not None else []:
+            note(msg)
         return source.compute(list(segments))
 
     fallback = recipe.reference.fallback

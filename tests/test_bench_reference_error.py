@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from benchmarks.experiment_reference_error import KINDS, hybrid_trajectory
+from benchmarks.experiment_reference_error import KINDS, hybrid_trajectory, reference_vs_truth
 from l2calib.trajectory import Trajectory
 
 
@@ -56,3 +56,30 @@ def test_an_unknown_kind_is_refused():
     truth, ref, *_ = _pair()
     with pytest.raises(ValueError, match="unknown kind"):
         hybrid_trajectory(truth, ref, "ct_yaw", 2.0)
+
+
+def test_reference_vs_truth_reads_offset_jitter_and_drift_in_the_lidar_frame():
+    t = np.arange(400) * 0.05
+    # a rig turning on a straight path: an offset fixed in it is no rigid motion of the path
+    p = np.stack([t, 0.5 * np.sin(0.5 * t), 0 * t], 1)
+    R = Rotation.from_euler("zyx", np.stack([0.3 * t, 0.05 * np.sin(t), 0 * t], 1))
+    truth = Trajectory((t * 1e9).astype(np.int64), p, R.as_quat(), "lidar", "world")
+    A = Rotation.from_euler("z", -25, degrees=True)  # the reference's own world frame
+
+    def reference(offset_body, dr_body):
+        p_ref = A.apply(p + R.apply(offset_body)) + [1.0, 2.0, 0.0]
+        R_ref = A * R * Rotation.from_rotvec(dr_body)
+        return Trajectory(truth.stamps_ns, p_ref, R_ref.as_quat(), "lidar", "odom")
+
+    # 2 cm along the LiDAR's y, turning with it: a constant offset, no rotation error
+    v = reference_vs_truth(truth, reference([0.0, 0.02, 0.0], np.zeros((400, 3))), 2.0)
+    assert v["duration_s"] == pytest.approx(19.95, abs=0.1)
+    np.testing.assert_allclose(v["pos_mean_cm"], [0.0, 2.0, 0.0], atol=0.15)
+    # roll drifting 0.057 deg in 20 s plus white jitter of 1e-4 rad about each axis
+    drift = np.stack([0.001 * t / 20, 0 * t, 0 * t], 1)
+    jitter = 1e-4 * np.random.default_rng(1).standard_normal((400, 3))
+    v = reference_vs_truth(truth, reference(np.zeros(3), drift + jitter), 2.0)
+    assert v["rms_pos_cm"] < 1e-6
+    assert v["rot_drift_deg"][0] == pytest.approx(np.rad2deg(0.001) * 18 / 20, rel=0.15)
+    assert max(v["rot_drift_deg"][1:]) < 0.01
+    np.testing.assert_allclose(v["rot_jitter_deg"], np.rad2deg(1e-4), rtol=0.15)

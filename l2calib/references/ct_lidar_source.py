@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Sequence as Seq
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
@@ -62,6 +63,7 @@ def run_segment(
     options,  # noqa: ANN001 - CtLidarOptions
     world_frame: str,
     progress: bool = False,
+    leadout: Seq[LidarScan] = (),
 ) -> Trajectory:
     """The odometry over ``warmup + scans``; keeps the poses from the segment's first point.
 
@@ -71,6 +73,10 @@ def run_segment(
     lost before ``cold_start_window_s`` into the segment, the odometry starts again twice as
     far back (:func:`cold_starts`), up to ``cold_starts`` starts; a later loss, or the last
     start's, is raised.
+
+    With ``options.backward_pass is True`` the poses are averaged with a backward pass over
+    ``warmup + scans + leadout`` (:mod:`l2calib.references.ct_smoothing`; ``leadout``: scans
+    after the segment, where that pass starts).
 
     Raises:
         ReferenceSourceError: fewer than 2 scans, or a non-finite pose.
@@ -99,9 +105,21 @@ def run_segment(
             log.info("%s: lost track %.1f s after start %d; starting earlier", world_frame,
                      odo.lost_at_s, n + 1)  # fmt: skip
     t, R, p = sample_poses(stamps, motions, all_scans[-1].end_stamp_ns, options.poses_per_scan)
+    if options.backward_pass is True:
+        R, p = _smoothed(t, R, p, all_scans + list(leadout), options, world_frame, progress)
     keep = t >= scans[0].stamp_ns
     q = Rotation.from_matrix(R[keep]).as_quat()
     return Trajectory(t[keep].astype(np.int64), p[keep], q, "lidar", world_frame)
+
+
+def _smoothed(t, R, p, scans, options, world_frame: str, progress: bool):  # noqa: ANN001, ANN202
+    """Forward poses ``t, R, p`` averaged with a backward pass over ``scans`` (ct_smoothing)."""
+    from l2calib.references.ct_smoothing import smoothed
+
+    def run(rev: list[LidarScan]):  # noqa: ANN202
+        return _run(CtLidarOdometry(options), rev, f"{world_frame} (backward)", progress)
+
+    return smoothed(t, R, p, scans, options, run, world_frame)
 
 
 def _run(odo: CtLidarOdometry, scans: list[LidarScan], world_frame: str, progress: bool):  # noqa: ANN202
@@ -126,6 +144,31 @@ class CtLidarReference(LidarOdometryReference):
 
     name = NAME
 
+    def __init__(self, options, sequences=None, progress: bool = False, **context) -> None:  # noqa: ANN001
+        """Resolves ``backward_pass: auto`` with ``context["planar_motion"]``.
+
+        The pipeline's IMU check: on for planar, yaw-dominant motion; resolved here so that
+        the cache key holds what ran.
+        """
+        self.notes: list[str] = []
+        if options.backward_pass == "auto":
+            on = bool(context.get("planar_motion", False))
+            options = options.model_copy(update={"backward_pass": on})
+            if on:
+                self.notes.append(
+                    "planar, yaw-dominant motion and reference.options.backward_pass: auto: "
+                    "ct-lidar also runs backwards in time and averages the two passes "
+                    "(experimental; twice the reference's time)"
+                )
+        super().__init__(options, sequences, progress, **context)
+
+    def key_options(self) -> dict[str, Any]:
+        """The options that decide the result; without the backward pass, keys as before it."""
+        opts = super().key_options()
+        if opts.get("backward_pass") is False:
+            del opts["backward_pass"]
+        return opts
+
     def version(self) -> str:
         """Version of the engine's results."""
         return ENGINE_VERSION
@@ -135,10 +178,26 @@ class CtLidarReference(LidarOdometryReference):
         return self.options.margin_s * 2 ** (self.options.cold_starts - 1)
 
     def run_segment(
-        self, scans: list[LidarScan], warmup: list[LidarScan], world_frame: str
+        self,
+        scans: list[LidarScan],
+        warmup: list[LidarScan],
+        world_frame: str,
+        leadout: Seq[LidarScan] = (),
     ) -> Trajectory:
         """The odometry over the segment (see :func:`run_segment`)."""
-        return run_segment(scans, warmup, self.options, world_frame, self.progress)
+        return run_segment(scans, warmup, self.options, world_frame, self.progress, leadout)
+
+    def leadout(self, seg: Segment) -> list[LidarScan]:
+        """``backward_leadout_s`` of scans after the segment, where the backward pass starts."""
+        seq = self.sequences.get(seg.sequence)
+        if self.options.backward_pass is not True or seq is None or not seg.measurements:
+            return []
+        return self._after(seq, seg.scans[-1].stamp_ns)
+
+    def _after(self, seq, last_ns: int) -> list[LidarScan]:  # noqa: ANN001
+        """The sequence's scans within ``backward_leadout_s`` after the scan at ``last_ns``."""
+        end = last_ns + int(self.options.backward_leadout_s * NS_PER_S)
+        return [m for m in seq.scans.load(last_ns + 1, end) if isinstance(m, LidarScan)]
 
     def compute_results(
         self, segments: Seq[Segment]
@@ -163,8 +222,15 @@ class CtLidarReference(LidarOdometryReference):
     def _compute_run(self, run: OdometryRun) -> dict[str, ReferenceTrajectory]:
         """One odometry over the run, cut into its segments (each cached on its own)."""
         scans = run.scans()
-        opts = self.options.model_dump(exclude={"cache", "cache_dir"})
+        opts = self.key_options()
         run_id = segment_fingerprint(scans, run.start_ns, scans[-1].stamp_ns)
+        leadout = (
+            self._after(run.sequence, scans[-1].stamp_ns)
+            if self.options.backward_pass is True
+            else []
+        )
+        if leadout:
+            run_id = {**run_id, "leadout": segment_fingerprint(leadout, 0, 0)}
         keys = {
             s.name: cache_key(
                 {
@@ -191,6 +257,8 @@ class CtLidarReference(LidarOdometryReference):
             t, R, p = sample_poses(
                 stamps, motions, scans[-1].end_stamp_ns, self.options.poses_per_scan
             )
+            if self.options.backward_pass is True:
+                R, p = _smoothed(t, R, p, scans + leadout, self.options, world, self.progress)
             trajs = {s.name: cut(t, R, p, s, frame) for s in run.segments}
             for s in run.segments if self.cache.enabled else []:
                 summary = {"source": self.name, "segment": s.name, "run_scans": len(scans)}

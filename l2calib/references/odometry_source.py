@@ -75,28 +75,42 @@ class LidarOdometryReference(ReferenceSource):
         first = seg.scans[0].stamp_ns if seg.measurements else seg.start_ns
         return [m for m in seq.scans.load(start, first - 1) if isinstance(m, LidarScan)]
 
-    def key(self, seg: Segment, warmup: list[LidarScan]) -> str:
+    def key_options(self) -> dict[str, Any]:
+        """The options that decide the result (part of the cache key)."""
+        return self.options.model_dump(exclude={"cache", "cache_dir"})
+
+    def leadout(self, seg: Segment) -> list[LidarScan]:
+        """Scans after the segment that the source also runs on (none here).
+
+        ct-lidar's backward pass starts on them.
+        """
+        return []
+
+    def key(self, seg: Segment, warmup: list[LidarScan], leadout: Seq[LidarScan] = ()) -> str:
         """Cache key of one segment's reference."""
-        opts = self.options.model_dump(exclude={"cache", "cache_dir"})
-        return cache_key(
-            {
-                "source": self.name,
-                "engine": self.version(),
-                "options": opts,
-                "segment": segment_fingerprint(seg.scans, seg.start_ns, seg.end_ns),
-                "warmup": segment_fingerprint(warmup, 0, 0) if warmup else None,
-            }
-        )
+        opts = self.key_options()
+        parts = {
+            "source": self.name,
+            "engine": self.version(),
+            "options": opts,
+            "segment": segment_fingerprint(seg.scans, seg.start_ns, seg.end_ns),
+            "warmup": segment_fingerprint(warmup, 0, 0) if warmup else None,
+        }
+        if leadout:
+            parts["leadout"] = segment_fingerprint(list(leadout), 0, 0)
+        return cache_key(parts)
 
     def compute_one(self, seg: Segment) -> ReferenceTrajectory:
         """The reference of one segment (from the cache when possible)."""
         scans = seg.scans
         warmup = self._warmup(seg)
+        leadout = self.leadout(seg)
         world = f"{self.name}:{seg.name}"
-        key = self.key(seg, warmup)
+        key = self.key(seg, warmup, leadout)
+        extra = {"leadout": leadout} if leadout else {}
 
         def compute() -> dict[str, np.ndarray]:
-            return trajectory_arrays(self.run_segment(scans, warmup, world))
+            return trajectory_arrays(self.run_segment(scans, warmup, world, **extra))
 
         summary = {"source": self.name, "segment": seg.name, "scans": len(scans),
                    "warmup": len(warmup)}  # fmt: skip

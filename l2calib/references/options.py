@@ -282,6 +282,21 @@ class CtLidarOptions(CacheOptions):
         ge=0,
         description="segments of one recording closer than this (s) are cut from one run",
     )
+    backward_pass: bool | Literal["auto"] = Field(
+        False,
+        description="EXPERIMENTAL: also run the odometry backwards in time and average the two "
+        "passes (twice the time); auto: only on planar, yaw-dominant motion (a ground "
+        "vehicle). On simulated 16-beam drives it moved the reward's peak along the lateral "
+        "lever arm from +2.2-2.7 cm to +0.7-2.2 cm (OS1-16) and from +4.2 to +2.4-3.6 cm "
+        "(VLP-16), by where the backward pass starts (docs/references.md, 'Backward pass'); "
+        "not a default until calibrations with it are measured",
+    )
+    backward_leadout_s: float = Field(
+        5.0,
+        ge=0,
+        description="... which starts this many seconds of scans after the segment (or run), "
+        "cold and usually while moving: its first seconds are its worst (s)",
+    )
 
     @model_validator(mode="after")
     def _ranges(self) -> CtLidarOptions:

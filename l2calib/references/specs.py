@@ -6,7 +6,9 @@ Factories take the pipeline's context as keyword arguments and ignore what they 
   (``kiss-icp`` and ``rtk`` load warm-up scans before each segment from them);
 * ``data`` — the recipe's :class:`~l2calib.recipe.DataConfig` (``rtk`` reads ``rtk_topic``);
 * ``fixes`` — NavSatFix arrays in memory by sequence name (``rtk``, for data without a bag);
-* ``progress`` — show progress bars.
+* ``progress`` — show progress bars;
+* ``planar_motion`` — the IMU says planar, yaw-dominant motion (a ground vehicle): ``ct-lidar``
+  adds its backward pass (``backward_pass: auto``).
 
 Example:
     >>> spec = get_plugin("l2calib.references", recipe.reference.name)  # doctest: +SKIP
