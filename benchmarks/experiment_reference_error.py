@@ -193,7 +193,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=["ugv drive ouster-os1-16 ct-lidar"])
     parser.add_argument(
-        "--kinds", nargs="*", default=KINDS, choices=KINDS, help="none: the statistics alone"
+        "--kinds", nargs="*", default=KINDS, choices=KINDS, help="no kind: the statistics alone"
     )
     parser.add_argument("--reward", default="paper", choices=["paper", "position"])
     parser.add_argument("--lowpass-half-s", type=float, default=2.0)
