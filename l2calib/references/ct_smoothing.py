@@ -27,11 +27,12 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation, Slerp
+from scipy.spatial.transform import Rotation
 
 from l2calib.data import NS_PER_S, LidarScan
 from l2calib.errors import ReferenceLostTrackError
 from l2calib.references.ct_motion import sample_poses
+from l2calib.trajectory import Trajectory
 
 log = logging.getLogger("l2calib.references")
 
@@ -120,10 +121,9 @@ def fuse(
         return R, p
     # drop repeated stamps (a scan's end is the next one's start) for the interpolation
     tb, keep = np.unique(tb, return_index=True)
-    Rb, pb = Rb[keep], pb[keep]
-    ti = t_ns[inside]
-    Rb_i = Slerp(tb.astype(np.float64), Rotation.from_matrix(Rb))(ti.astype(np.float64))
-    pb_i = np.stack([np.interp(ti, tb, pb[:, k]) for k in range(3)], axis=1)
+    quat = Rotation.from_matrix(Rb[keep]).as_quat()
+    b = Trajectory(tb, pb[keep], quat, "lidar", "backward").interpolate(t_ns[inside])
+    Rb_i, pb_i = Rotation.from_quat(b.quat_xyzw), b.t_world_body
     Rf = Rotation.from_matrix(R[inside])
     pf = p[inside]
     # Procrustes on positions and orientations together: max tr(Aᵀ M) over rotations A
