@@ -1,12 +1,13 @@
 """``ct-lidar``'s backward pass: the odometry run again backwards in time, the two averaged.
 
-EXPERIMENTAL (``reference.options.backward_pass``, off by default). The odometry is a filter:
-each scan is solved against a map of the scans before it, with a motion prior from them, so its
-error depends on the way it came. Run backwards in time (the scans in reverse order, each scan's
-point times mirrored) the same odometry makes a different error; the average of the two passes
-keeps what they agree on. Where the forward error follows the turns that carry the horizontal
-lever arm's signal (a 1 cm lateral lever arm tilts a LIO's attitude by about 0.015° in a
-0.5 rad/s turn), that is what moves a LiDAR-only calibration of a ground vehicle.
+EXPERIMENTAL (``reference.options.backward_pass``; the default ``auto`` runs it for ground
+vehicles). The odometry is a filter: each scan is solved against a map of the scans before it,
+with a motion prior from them, so its error depends on the way it came. Run backwards in time
+(the scans in reverse order, each scan's point times mirrored) the same odometry makes a
+different error; the average of the two passes keeps what they agree on. Where the forward error
+follows the turns that carry the horizontal lever arm's signal (a 1 cm lateral lever arm tilts a
+LIO's attitude by about 0.015° in a 0.5 rad/s turn), that is what moves a LiDAR-only calibration
+of a ground vehicle.
 
 Measured on the simulator's 60 s drive (``ugv drive ouster-os1-16 ct-lidar``, the 30 s the
 selection keeps; ``python -m benchmarks.experiment_reference_error``): the reward's peak along

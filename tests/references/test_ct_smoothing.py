@@ -82,7 +82,8 @@ def test_auto_runs_the_backward_pass_on_a_drive_only_and_it_tracks(drive, tmp_pa
     on = spec.build(auto, planar_motion=True)
     off = spec.build(auto)
     default = spec.build({"cache_dir": str(tmp_path)}, planar_motion=True)
-    assert default.options.backward_pass is False and not default.notes  # off by default
+    assert default.options.backward_pass is True and default.notes  # auto is the default
+    assert spec.build({"cache_dir": str(tmp_path)}).options.backward_pass is False
     assert on.options.backward_pass is True and on.notes
     assert off.options.backward_pass is False and not off.notes
     both = on.compute([drive.segment])[0].trajectory
@@ -109,7 +110,7 @@ def test_the_pipeline_turns_it_on_for_a_drive_says_so_and_starts_it_after_the_se
 
     monkeypatch.setattr(ct_lidar_source, "_run", spy)
     notes: list[str] = []
-    options = {"cache": False, "backward_pass": "auto"}
+    options = {"cache": False}  # backward_pass: auto, the default
     recipe = recipe_from_dict({"reference": {"name": "ct-lidar", "options": options}})
     ref = compute_references(recipe, [drive.segment], [drive.sequence], notes.append)[0]
     assert any("backwards in time" in n for n in notes)
