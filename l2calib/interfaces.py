@@ -32,6 +32,11 @@ class ReferenceTrajectory:
         time_offset_hint_s: A LiDAR–IMU time offset (s, ``t_imu = t_lidar + offset``) the source
             measured on this segment (e.g. gt-file's clock check), used as the starting value
             when the offset is estimated; ``None``: nothing measured.
+        alternative: The same reference computed another way, at the same stamps, whose
+            difference from ``trajectory`` is about the size of ``trajectory``'s own error
+            (ct-lidar with the backward pass: the forward pass alone, which differs from the
+            two passes' average by half their disagreement); the uncertainty estimate re-scores
+            against it. ``None``: the source has no second estimate.
     """
 
     segment: str
@@ -39,6 +44,7 @@ class ReferenceTrajectory:
     constrains: Literal["pose", "position"] = "pose"
     source: str = ""
     time_offset_hint_s: float | None = None
+    alternative: Trajectory | None = None
 
 
 class ReferenceSource(ABC):

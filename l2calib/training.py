@@ -95,13 +95,16 @@ def estimate_axis_uncertainty(env, T_imu_lidar, estimated_offset_s, hold, config
     from l2calib.train.env_build import block_costs
 
     T, offsets = uncertainty.candidates(T_imu_lidar, estimated_offset_s)
-    costs, scans, centre = block_costs(env, T, offsets, config.block_s)
+    costs = block_costs(env, T, offsets, config.block_s)
     held_axis = None
     if hold is not None:  # the LiDAR axis nearest the held (vertical) direction
         up_lidar = np.asarray(T_imu_lidar, dtype=np.float64)[:3, :3].T @ np.asarray(hold.axis_imu)
         held_axis = 3 + int(np.argmax(np.abs(up_lidar)))
-    tau = uncertainty.correlation_time(centre)  # the stencil's first candidate: the result
-    out = uncertainty.estimate(costs, scans, held_axis=held_axis, tau=tau)
+    tau = uncertainty.correlation_time(costs.centre)  # the stencil's first candidate: the result
+    out = uncertainty.estimate(
+        costs.costs, costs.scans, held_axis=held_axis, tau=tau,
+        alternative_costs=costs.alternative,
+    )  # fmt: skip
     out.evaluations = int(T.shape[0])
     out.limits = (
         config.rotation_limit_deg,

@@ -56,6 +56,14 @@ def test_the_per_axis_bounds_are_written_in_the_users_units(tmp_path):
     assert written["bound95_held"] == ["translation along LiDAR z"]
     assert "95 %" in written["bound95_meaning"]
     assert written["bound95_correlation_scans"] == 6.25
+    assert "bound95_reference_translation_m" not in written  # no second reference estimate
+    # with one (ct-lidar's two passes), the reference's part is written beside the bound
+    ref = np.array([math.radians(0.02), 0, 0, 0.003, 0.001, 0])
+    unc.reference95 = ref
+    path = write_calibration(tmp_path / "r.yaml", CalibrationResult(_T(), axis_uncertainty=unc))
+    written = yaml.safe_load(path.read_text())["uncertainty"]
+    assert written["bound95_reference_translation_m"] == [0.003, 0.001, 0.0]
+    assert written["bound95_reference_rotation_deg"] == [0.02, 0.0, 0.0]
 
 
 def test_unreliable_result_warns_above_the_paste_ready_blocks(tmp_path):
@@ -168,3 +176,24 @@ def test_demo_command_runs_end_to_end_on_a_tiny_budget(tmp_path):
     page = (out / "calibration" / "report.html").read_text()
     assert (out / "calibration" / "trajectories.png").stat().st_size > 10_000
     assert page.count("data:image/png;base64,") == 3 and "ground truth translation" in page
+
+
+def test_the_printed_table_shows_the_references_part_of_the_bound_only_when_there_is_one():
+    from rich.console import Console
+
+    from l2calib.assess.uncertainty import AxisUncertainty
+    from l2calib.outputs.console_summary import print_result
+
+    bound = np.array([math.radians(0.05)] * 3 + [0.012, 0.018, math.inf])
+    zeros = np.zeros(6)
+    unc = AxisUncertainty(bound, zeros, zeros, zeros, ~np.isfinite(bound), 10, 200, 0.1, [5])
+
+    def printed() -> str:
+        console = Console(record=True, width=140)
+        print_result(console, CalibrationResult(_T(), final_reward=0.5, axis_uncertainty=unc))
+        return console.export_text()
+
+    assert "±1.20" in printed() and "reference's error" not in printed()
+    unc.reference95 = np.array([0, 0, 0, 0.004, 0.009, 0.0])
+    row = next(x for x in printed().splitlines() if "reference's error" in x)
+    assert "±0.40" in row and "±0.90" in row and "held" in row

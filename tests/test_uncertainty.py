@@ -77,6 +77,23 @@ def test_misfit_grows_with_the_cost_left_at_the_result():
     assert slow.tau == 9.0 and unc.estimate(block_costs(mu), scans=200, tau=0.3).tau == 1.0
 
 
+def test_the_reference_term_is_the_shift_of_the_minimum_against_its_alternative():
+    """Against the alternative every block's minimum moves by ``d``: r = 1.96 |d|, in quadrature."""
+    from scipy import stats
+
+    mu = np.random.default_rng(5).normal(size=(8, 6)) * 1e-4
+    d = np.array([0, 0, 1e-3, 0.012, -0.004, 0.0])  # rad, m
+    plain = unc.estimate(block_costs(mu), scans=10**9)
+    u = unc.estimate(block_costs(mu), scans=10**9, alternative_costs=block_costs(mu + d))
+    np.testing.assert_array_equal(plain.reference95, np.zeros(6))
+    np.testing.assert_allclose(u.reference95, stats.norm.ppf(0.975) * np.abs(d), atol=1e-9)
+    rest = plain.bound95 - np.abs(plain.step)
+    np.testing.assert_allclose(u.bound95, np.abs(u.step) + np.hypot(rest, u.reference95))
+    # the held axis stays out: no reference term on it
+    held = unc.estimate(block_costs(mu), 10**9, held_axis=5, alternative_costs=block_costs(mu + d))
+    assert held.reference95[5] == 0 and np.isinf(held.bound95[5])
+
+
 def _ar1(phi: float, n: int, seed: int) -> np.ndarray:
     rng, x = np.random.default_rng(seed), np.zeros(n)
     for k in range(1, n):

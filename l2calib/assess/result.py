@@ -206,11 +206,17 @@ def _bounds(unc: Any | None) -> dict[str, Any]:
     out["bound95_meaning"] = (
         "per LiDAR axis, the error of this calibration lies within +/- the bound with about 95 % "
         "confidence: the data's noise (block sandwich, Student-t), the distance to the reward's "
-        "own optimum and a model-misfit term (residuals counted once per bound95_"
-        "correlation_scans), from 73-99 odometry runs around the result; null: the reward is "
-        "flat along the axis (or the axis was held). docs/design.md"
+        "own optimum, a model-misfit term (residuals counted once per bound95_"
+        "correlation_scans) and, where the reference brings a second estimate of itself "
+        "(ct-lidar's backward pass), the reference's own error (bound95_reference_*), from "
+        "73-99 odometry runs around the result; null: the reward is flat along the axis (or "
+        "the axis was held). docs/design.md"
     )
     out["bound95_correlation_scans"] = round(float(unc.tau), 2)
+    ref = getattr(unc, "reference95", None)
+    if ref is not None and np.any(ref > 0):
+        out["bound95_reference_rotation_deg"] = vals(ref[:3], 180 / np.pi, 4)
+        out["bound95_reference_translation_m"] = vals(ref[3:6], 1.0, 5)
     from l2calib.assess.uncertainty import AXIS_NAMES
 
     if unc.held:

@@ -11,7 +11,7 @@ their means and square roots), and per block of :data:`BLOCK_S` seconds of each 
 the Hessian ``H`` of ``C`` and each block's gradient ``g_b`` (central differences), the bound
 on axis ``i`` is
 
-    bound95_i = |step_i| + sqrt( (t₉₇.₅,B−1 · σ_noise,i)² + σ_misfit,i² )
+    bound95_i = |step_i| + sqrt( (t₉₇.₅,B−1 · σ_noise,i)² + σ_misfit,i² + r_i² )
 
 * ``σ_noise``: the data's noise, a block sandwich ``H⁻¹ M H⁻¹`` with
   ``M = B/(B−1) Σ (g_b − ḡ)(g_b − ḡ)ᵀ`` — how far the minimum would move on other data like
@@ -28,6 +28,15 @@ on axis ``i`` is
   and with how slowly its misfit varies (a drift: τ 4.3–9.7 scans on the simulated ground
   vehicle and UAV, 1.0–4.2 on hand-held runs; ~21 where a search was trapped off the truth;
   ``benchmarks/results/uncertainty.json``).
+
+* ``r``: the reference's own error, where the reference brings a second estimate of itself
+  (:attr:`~l2calib.interfaces.ReferenceTrajectory.alternative`; ``ct-lidar``'s backward pass:
+  the forward pass alone). The cost's minimum is found again against the alternative, from
+  the same odometry runs (``shift = −H⁻¹ Σ (g_alt,b − g_b)``), and ``r = z₉₇.₅ · |shift|``.
+  Were the two passes' errors independent and alike, the forward pass would differ from their
+  average by as much as the average differs from the truth, so ``shift`` is one draw of the
+  reference error's effect on the result, taken as its standard deviation. An error both passes
+  share is not seen. 0 where there is no alternative (hand-held runs, exact references).
 
 Directions along which ``C`` does not curve up (relative eigenvalue of ``H`` in stencil units
 below :data:`FLAT_RTOL`, or negative) carry no information: an axis that lies mostly in them is
@@ -81,6 +90,7 @@ class AxisUncertainty:
         noise95: Its data-noise part (``t · σ_noise``).
         step: Distance to the cost's own minimum along each axis (signed).
         misfit: Its model-misfit part (``σ_misfit``).
+        reference95: Its reference-error part (``r``; zeros without an alternative reference).
         flat: Axes along which the cost does not curve up.
         blocks: Blocks of data the noise was measured on; ``scans``: scans in the cost.
         cost: ``C(θ̂)``, the summed pose cost at the result.
@@ -102,6 +112,7 @@ class AxisUncertainty:
     cost: float
     held: list[int] = field(default_factory=list)
     tau: float = 1.0
+    reference95: np.ndarray | None = None
     evaluations: int = 0
     limits: tuple[float, float, float] | None = None
 
@@ -182,12 +193,18 @@ def correlation_time(series: list[np.ndarray], window: float = 5.0) -> float:
 
 
 def estimate(
-    block_costs: np.ndarray, scans: int, held_axis: int | None = None, tau: float = 1.0
+    block_costs: np.ndarray,
+    scans: int,
+    held_axis: int | None = None,
+    tau: float = 1.0,
+    alternative_costs: np.ndarray | None = None,
 ) -> AxisUncertainty:
     """The per-axis bounds from the stencil's block costs (module docstring).
 
     Args:
         block_costs: ``[P, B]`` cost of each :func:`candidates` candidate on each block.
+        alternative_costs: ``[P, B]`` the same against the reference's alternative (the
+            reference-error term ``r``), or ``None``.
         scans: Scans that entered the cost (``S``).
         tau: The residuals' integrated autocorrelation time at the result (scans;
             :func:`correlation_time`), which divides ``S`` in the misfit term.
@@ -223,11 +240,19 @@ def estimate(
     step = full(-Hi @ g.sum(1), 0.0)
     tau = max(float(tau), 1.0)
     misfit = full(np.sqrt(2 * cost * tau / max(scans, 1) * np.clip(np.diag(Hi), 0, None)), 0.0)
+    reference95 = np.zeros(n)
+    if alternative_costs is not None:
+        g_alt = derivatives(np.asarray(alternative_costs, dtype=np.float64), n)[0][keep_axes]
+        shift = -Hi @ (g_alt - g).sum(1)
+        reference95 = full(float(stats.norm.ppf(0.975)) * np.abs(shift), 0.0)
     flat = full(flat, True)
-    bound = np.abs(step) + np.sqrt(noise95**2 + misfit**2)
+    bound = np.abs(step) + np.sqrt(noise95**2 + misfit**2 + reference95**2)
     bound[flat] = np.inf
     held = [] if held_axis is None else [held_axis]
-    return AxisUncertainty(bound, noise95, step, misfit, flat, B, int(scans), cost, held, tau=tau)
+    return AxisUncertainty(
+        bound, noise95, step, misfit, flat, B, int(scans), cost, held, tau=tau,
+        reference95=reference95,
+    )  # fmt: skip
 
 
 def undetermined(

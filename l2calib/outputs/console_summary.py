@@ -64,6 +64,12 @@ def print_result(console, result, truth=None) -> None:
             "95 % bound rotation (deg)",
             *(bound(v, i, f"±{v:.3f}") for i, v in enumerate(unc.rotation_deg)),
         )
+        ref = getattr(unc, "reference95", None)
+        if ref is not None and np.any(ref[3:6] > 0):
+            table.add_row(
+                "  of it the reference's error (cm)",
+                *(bound(v, 3 + i, f"±{100 * v:.2f}") for i, v in enumerate(ref[3:6])),
+            )
     if result.resolution is not None:
         res = result.resolution
         table.add_row(

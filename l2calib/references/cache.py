@@ -187,13 +187,21 @@ class ReferenceCache:
         return arrays, False
 
 
-def trajectory_arrays(traj: Trajectory) -> dict[str, np.ndarray]:
-    """A trajectory as cacheable arrays."""
-    return {
+def trajectory_arrays(
+    traj: Trajectory, alternative: Trajectory | None = None
+) -> dict[str, np.ndarray]:
+    """A trajectory as cacheable arrays, with an alternative estimate at the same stamps."""
+    out = {
         "stamps_ns": traj.stamps_ns,
         "t_world_body": traj.t_world_body,
         "quat_xyzw": traj.quat_xyzw,
     }
+    if alternative is not None:
+        out |= {
+            "alternative_t_world_body": alternative.t_world_body,
+            "alternative_quat_xyzw": alternative.quat_xyzw,
+        }
+    return out
 
 
 def trajectory_from_arrays(
@@ -203,3 +211,15 @@ def trajectory_from_arrays(
     return Trajectory(
         arrays["stamps_ns"], arrays["t_world_body"], arrays["quat_xyzw"], body_frame, world_frame
     )
+
+
+def alternative_from_arrays(
+    arrays: dict[str, np.ndarray], body_frame: str, world_frame: str
+) -> Trajectory | None:
+    """The alternative estimate stored by :func:`trajectory_arrays`, or ``None``."""
+    if "alternative_t_world_body" not in arrays:
+        return None
+    return Trajectory(
+        arrays["stamps_ns"], arrays["alternative_t_world_body"], arrays["alternative_quat_xyzw"],
+        body_frame, world_frame,
+    )  # fmt: skip

@@ -24,6 +24,7 @@ from l2calib.data import NS_PER_S, LidarScan, Segment
 from l2calib.errors import ReferenceLostTrackError
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.references.cache import (
+    alternative_from_arrays,
     cache_key,
     segment_fingerprint,
     trajectory_arrays,
@@ -65,6 +66,18 @@ def run_segment(
     progress: bool = False,
     leadout: Seq[LidarScan] = (),
 ) -> Trajectory:
+    """The odometry over ``warmup + scans`` (:func:`run_segment_passes`' first trajectory)."""
+    return run_segment_passes(scans, warmup, options, world_frame, progress, leadout)[0]
+
+
+def run_segment_passes(
+    scans: list[LidarScan],
+    warmup: list[LidarScan],
+    options,  # noqa: ANN001 - CtLidarOptions
+    world_frame: str,
+    progress: bool = False,
+    leadout: Seq[LidarScan] = (),
+) -> tuple[Trajectory, Trajectory | None]:
     """The odometry over ``warmup + scans``; keeps the poses from the segment's first point.
 
     A start mid-swing can lose track within a few seconds, and so can a hard swing met with a
@@ -77,6 +90,10 @@ def run_segment(
     With ``options.backward_pass is True`` the poses are averaged with a backward pass over
     ``warmup + scans + leadout`` (:mod:`l2calib.references.ct_smoothing`; ``leadout``: scans
     after the segment, where that pass starts).
+
+    Returns:
+        The poses ``T_world_lidar`` and, with a backward pass that tracked, the forward pass
+        alone at the same stamps (:attr:`ReferenceTrajectory.alternative`); else ``None``.
 
     Raises:
         ReferenceSourceError: fewer than 2 scans, or a non-finite pose.
@@ -105,21 +122,35 @@ def run_segment(
             log.info("%s: lost track %.1f s after start %d; starting earlier", world_frame,
                      odo.lost_at_s, n + 1)  # fmt: skip
     t, R, p = sample_poses(stamps, motions, all_scans[-1].end_stamp_ns, options.poses_per_scan)
-    if options.backward_pass is True:
-        R, p = _smoothed(t, R, p, all_scans + list(leadout), options, world_frame, progress)
     keep = t >= scans[0].stamp_ns
+    if options.backward_pass is not True:
+        return _poses(t, R, p, keep, world_frame), None
+    Rs, ps, fwd = _both_passes(t, R, p, all_scans + list(leadout), options, world_frame, progress)
+    forward = None if fwd is None else _poses(t, *fwd, keep, world_frame)
+    return _poses(t, Rs, ps, keep, world_frame), forward
+
+
+def _poses(t, R, p, keep: np.ndarray, world_frame: str) -> Trajectory:  # noqa: ANN001
+    """The trajectory of the poses ``keep`` selects."""
     q = Rotation.from_matrix(R[keep]).as_quat()
     return Trajectory(t[keep].astype(np.int64), p[keep], q, "lidar", world_frame)
 
 
-def _smoothed(t, R, p, scans, options, world_frame: str, progress: bool):  # noqa: ANN001, ANN202
-    """Forward poses ``t, R, p`` averaged with a backward pass over ``scans`` (ct_smoothing)."""
+def _both_passes(t, R, p, scans, options, world_frame: str, progress: bool):  # noqa: ANN001, ANN202
+    """Forward poses ``t, R, p`` averaged with a backward pass over ``scans`` (ct_smoothing).
+
+    Returns:
+        The averaged ``R``, ``p`` and the forward ``(R, p)`` — the reference's alternative —
+        or ``None`` in its place when the backward pass lost track (the forward poses are then
+        returned as they are: one estimate only).
+    """
     from l2calib.references.ct_smoothing import smoothed
 
     def run(rev: list[LidarScan]):  # noqa: ANN202
         return _run(CtLidarOdometry(options), rev, f"{world_frame} (backward)", progress)
 
-    return smoothed(t, R, p, scans, options, run, world_frame)
+    Rs, ps = smoothed(t, R, p, scans, options, run, world_frame)
+    return Rs, ps, (None if Rs is R else (R, p))  # smoothed hands R back when it did not fuse
 
 
 def _run(odo: CtLidarOdometry, scans: list[LidarScan], world_frame: str, progress: bool):  # noqa: ANN202
@@ -167,6 +198,8 @@ class CtLidarReference(LidarOdometryReference):
         opts = super().key_options()
         if opts.get("backward_pass") is False:
             del opts["backward_pass"]
+        elif opts.get("backward_pass") is True:  # entries since the forward pass is kept too
+            opts["alternative"] = "forward pass"
         return opts
 
     def version(self) -> str:
@@ -186,6 +219,16 @@ class CtLidarReference(LidarOdometryReference):
     ) -> Trajectory:
         """The odometry over the segment (see :func:`run_segment`)."""
         return run_segment(scans, warmup, self.options, world_frame, self.progress, leadout)
+
+    def run_passes(
+        self,
+        scans: list[LidarScan],
+        warmup: list[LidarScan],
+        world_frame: str,
+        leadout: Seq[LidarScan] = (),
+    ) -> tuple[Trajectory, Trajectory | None]:
+        """The odometry over the segment and its forward pass alone (:func:`run_segment_passes`)."""
+        return run_segment_passes(scans, warmup, self.options, world_frame, self.progress, leadout)
 
     def leadout(self, seg: Segment) -> list[LidarScan]:
         """``backward_leadout_s`` of scans after the segment, where the backward pass starts."""
@@ -248,26 +291,37 @@ class CtLidarReference(LidarOdometryReference):
         # one world frame for the segments of one run: the LIO backend's shared map spans a frame
         frame = f"{self.name}:{run.sequence.name}@{run.start_ns}"
         if cached:
-            trajs = {
-                s.name: trajectory_from_arrays(hits[s.name], "lidar", frame) for s in run.segments
-            }
+            arrays = hits
         else:
             world = f"{self.name}:{run.sequence.name} run"
             stamps, motions = _run(CtLidarOdometry(self.options), scans, world, self.progress)
             t, R, p = sample_poses(
                 stamps, motions, scans[-1].end_stamp_ns, self.options.poses_per_scan
             )
+            forward = None
             if self.options.backward_pass is True:
-                R, p = _smoothed(t, R, p, scans + leadout, self.options, world, self.progress)
-            trajs = {s.name: cut(t, R, p, s, frame) for s in run.segments}
+                R, p, forward = _both_passes(
+                    t, R, p, scans + leadout, self.options, world, self.progress
+                )
+            arrays = {
+                s.name: trajectory_arrays(
+                    cut(t, R, p, s, frame), None if forward is None else cut(t, *forward, s, frame)
+                )
+                for s in run.segments
+            }
             for s in run.segments if self.cache.enabled else []:
                 summary = {"source": self.name, "segment": s.name, "run_scans": len(scans)}
                 try:
-                    self.cache.store(keys[s.name], trajectory_arrays(trajs[s.name]), summary)
+                    self.cache.store(keys[s.name], arrays[s.name], summary)
                 except OSError as exc:  # as ReferenceCache.get_or_compute: never stops a run
                     log.warning("cannot write the reference cache (%s)", exc)
+        trajs = {n: trajectory_from_arrays(a, "lidar", frame) for n, a in arrays.items()}
         lead = (run.segments[0].scans[0].stamp_ns - run.start_ns) / NS_PER_S
         log.info("%s: %d segment(s) of %s from one run starting %.1f s before the first (%s)",
                  self.name, len(trajs), run.sequence.name, lead,
                  "cached" if cached else "computed")  # fmt: skip
-        return {n: ReferenceTrajectory(n, tr, "pose", self.name) for n, tr in trajs.items()}
+        alternatives = {n: alternative_from_arrays(a, "lidar", frame) for n, a in arrays.items()}
+        return {
+            n: ReferenceTrajectory(n, tr, "pose", self.name, alternative=alternatives[n])
+            for n, tr in trajs.items()
+        }

@@ -153,8 +153,9 @@ def smoothed(
     """Forward poses averaged with a backward pass over ``scans``, or as they are if it fails.
 
     A backward pass that loses track (it starts cold at the end of the scans, where the
-    forward pass had a warm-up) leaves the forward poses unchanged, with a warning naming
-    ``where``.
+    forward pass had a warm-up) leaves the forward poses unchanged — the same ``R``, ``p``
+    objects come back, which tells the caller there is no second estimate — with a warning
+    naming ``where``.
     """
     try:
         back = backward_poses(scans, options, run)

@@ -20,6 +20,7 @@ from l2calib.errors import DataError, ReferenceLostTrackError
 from l2calib.interfaces import ReferenceSource, ReferenceTrajectory
 from l2calib.references.cache import (
     ReferenceCache,
+    alternative_from_arrays,
     cache_key,
     segment_fingerprint,
     trajectory_arrays,
@@ -62,6 +63,16 @@ class LidarOdometryReference(ReferenceSource):
         self, scans: list[LidarScan], warmup: list[LidarScan], world_frame: str
     ) -> Trajectory:
         """Poses ``T_world_lidar`` covering ``scans`` from their first point to the last end."""
+
+    def run_passes(
+        self, scans: list[LidarScan], warmup: list[LidarScan], world_frame: str, **extra: Any
+    ) -> tuple[Trajectory, Trajectory | None]:
+        """:meth:`run_segment`'s poses and a second estimate at the same stamps, or ``None``.
+
+        The second is :attr:`ReferenceTrajectory.alternative` (none here; ct-lidar's backward
+        pass gives one).
+        """
+        return self.run_segment(scans, warmup, world_frame, **extra), None
 
     def warmup_s(self) -> float:
         """Seconds of scans loaded before each segment (``margin_s``; more where retried)."""
@@ -110,17 +121,20 @@ class LidarOdometryReference(ReferenceSource):
         extra = {"leadout": leadout} if leadout else {}
 
         def compute() -> dict[str, np.ndarray]:
-            return trajectory_arrays(self.run_segment(scans, warmup, world, **extra))
+            return trajectory_arrays(*self.run_passes(scans, warmup, world, **extra))
 
         summary = {"source": self.name, "segment": seg.name, "scans": len(scans),
                    "warmup": len(warmup)}  # fmt: skip
         arrays, hit = self.cache.get_or_compute(key, compute, summary)
         try:
             traj = trajectory_from_arrays(arrays, "lidar", world)
+            alternative = alternative_from_arrays(arrays, "lidar", world)
         except DataError as exc:  # checksummed, so only a foreign writer gets here
             log.warning("reference cache entry %s is invalid (%s); recomputing", key, exc)
             self.cache.delete(key)
-            traj = trajectory_from_arrays(compute(), "lidar", world)
+            arrays = compute()
+            traj = trajectory_from_arrays(arrays, "lidar", world)
+            alternative = alternative_from_arrays(arrays, "lidar", world)
         log.info(
             "%s reference of %s: %d poses (%s, %d warm-up scans)",
             self.name,
@@ -129,7 +143,7 @@ class LidarOdometryReference(ReferenceSource):
             "cached" if hit else "computed",
             len(warmup),
         )
-        return ReferenceTrajectory(seg.name, traj, "pose", self.name)
+        return ReferenceTrajectory(seg.name, traj, "pose", self.name, alternative=alternative)
 
     def compute_results(
         self, segments: Seq[Segment]

@@ -8,14 +8,14 @@ prepared segment (joint multi-sequence calibration), and every step ends the epi
 
 Also here: :func:`make_env` (a recipe's env, as worker processes and Ray actors build it) and
 :func:`merge_shares` (a batch's rewards back in candidate order from the shares the workers or
-actors scored).
+actors scored; :func:`merge_block_shares` the same for the uncertainty's block costs).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 import torch
@@ -170,6 +170,7 @@ class CalibrationEnv(ScoringEnv):
             align = "none" if backend.outputs_in_reference_frame else "se3"
         self.align = align
         self._ref_cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}
+        self._alt_cache: dict[str, tuple[torch.Tensor, torch.Tensor]] = {}  # alternatives
 
     def _reference_at(self, index: int, segment: str, stamps_ns: np.ndarray):
         if segment not in self._ref_cache:
@@ -265,18 +266,15 @@ class CalibrationEnv(ScoringEnv):
         time_offset_s: torch.Tensor | None,
         num_workers: int,
         block_s: float,
-    ) -> tuple[np.ndarray, int, list[np.ndarray]]:
+    ) -> BlockCosts:
         """The reward's pose cost per block of data for this worker's share of the candidates.
 
         The cost of a scan is ``e_t / 4 + e_r / π²`` (m, rad: the paper reward's terms before
         their means and square roots; the rotation term only against pose references), summed
         over blocks of ``block_s`` seconds of each segment
-        (:func:`l2calib.assess.uncertainty.block_index`). For the uncertainty estimate.
-
-        Returns:
-            ``[k, B]`` costs (B blocks over all segments, in order), the scans counted, and
-            the per-scan costs of the share's first candidate on each segment (its valid
-            scans, in time order: the residuals' correlation; empty for an empty share).
+        (:func:`l2calib.assess.uncertainty.block_index`). For the uncertainty estimate; where
+        any reference has an :attr:`~l2calib.interfaces.ReferenceTrajectory.alternative`, the
+        same cost against it too (from the same odometry runs).
         """
         from l2calib.assess.uncertainty import block_index
 
@@ -284,21 +282,46 @@ class CalibrationEnv(ScoringEnv):
         T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
         if self.hold is not None:
             T = self.hold.apply(T)
-        blocks, scans, first = [], 0, []
+        blocks, alt_blocks, scans, first = [], [], 0, []
         outputs = self.backend.evaluate(T, self._offsets(T, offsets)) if T.shape[0] else []
         for i, o in enumerate(outputs):
             T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
             valid = o.valid & ok[None]
-            e_t, e_r = aligned_errors(T_ref, o.T_world_lidar, valid, self.align)
-            use_r = float(self.references[i].constrains == "pose")
-            cost = torch.where(valid, e_t / 4 + use_r * e_r / math.pi**2, 0.0).numpy()
+            cost = self._pose_cost(i, T_ref, o.T_world_lidar, valid)
+            alt = self._alternative_at(i, o.segment, o.stamps_ns)
+            alt_cost = (
+                cost if alt is None else self._pose_cost(i, alt[0], o.T_world_lidar, valid & alt[1])
+            )
             b = block_index(o.stamps_ns * 1e-9, block_s)
             blocks += [cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
+            alt_blocks += [alt_cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
             scans += int(ok.sum())
             first.append(cost[0, valid[0].numpy()])
         if not blocks:
-            return np.zeros((T.shape[0], 0)), scans, first
-        return np.stack(blocks, 1), scans, first
+            return BlockCosts(np.zeros((T.shape[0], 0)), scans, first, None)
+        has_alt = any(r.alternative is not None for r in self.references)
+        return BlockCosts(
+            np.stack(blocks, 1), scans, first, np.stack(alt_blocks, 1) if has_alt else None
+        )
+
+    def _pose_cost(self, i: int, T_ref: torch.Tensor, T_est: torch.Tensor, valid: torch.Tensor):
+        """``[k, N]`` per-scan costs ``e_t / 4 + e_r / π²`` on segment ``i`` (0 where invalid)."""
+        e_t, e_r = aligned_errors(T_ref, T_est, valid, self.align)
+        use_r = float(self.references[i].constrains == "pose")
+        return torch.where(valid, e_t / 4 + use_r * e_r / math.pi**2, 0.0).numpy()
+
+    def _alternative_at(self, index: int, segment: str, stamps_ns: np.ndarray):
+        """The reference's alternative ``[N, 4, 4]`` and ``[N]`` mask at ``stamps_ns``, or None."""
+        if self.references[index].alternative is None:
+            return None
+        if segment not in self._alt_cache:
+            sampled, ok = self.references[index].alternative.sample(
+                stamps_ns, self.reward_config.max_gap_s
+            )
+            T = torch.zeros(len(stamps_ns), 4, 4, dtype=F64)
+            T[torch.from_numpy(ok)] = sampled.matrices()
+            self._alt_cache[segment] = (T, torch.from_numpy(ok))
+        return self._alt_cache[segment]
 
     def trajectory_share(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, num_workers: int
@@ -373,6 +396,42 @@ def make_env(
         hold=hold,
         fixed_time_offset_s=recipe.train.known_time_offset_s,
     )
+
+
+class BlockCosts(NamedTuple):
+    """The pose cost of candidates per block of data (the uncertainty estimate's input).
+
+    Attributes:
+        costs: ``[k, B]`` costs (``B`` blocks over all segments, in order).
+        scans: The scans counted.
+        centre: Per segment, the per-scan costs of the first candidate (its valid scans, in
+            time order: the residuals' correlation; empty for an empty share).
+        alternative: ``[k, B]`` the same costs against the references' alternatives (the main
+            reference's where a segment has none), or ``None`` when no reference has one.
+    """
+
+    costs: np.ndarray
+    scans: int
+    centre: list[np.ndarray]
+    alternative: np.ndarray | None
+
+
+def merge_block_shares(parts: Sequence[BlockCosts], total: int) -> BlockCosts:
+    """One :class:`BlockCosts` of ``total`` candidates from shares split as in :func:`merge_shares`.
+
+    Share 0 holds candidate 0, whose per-scan costs are kept; empty shares are skipped.
+    """
+    n = len(parts)
+    width = max(p.costs.shape[1] for p in parts)
+    costs = np.zeros((total, width))
+    has_alt = any(p.alternative is not None for p in parts)
+    alternative = np.zeros((total, width)) if has_alt else None
+    for i, p in enumerate(parts):
+        if p.costs.shape[0]:
+            costs[i::n] = p.costs
+            if alternative is not None:
+                alternative[i::n] = p.alternative
+    return BlockCosts(costs, max(p.scans for p in parts), parts[0].centre, alternative)
 
 
 def merge_shares(parts: Sequence[Any], total: int):

@@ -21,7 +21,7 @@ from l2calib.data import Segment
 from l2calib.errors import ConfigError
 from l2calib.interfaces import ReferenceTrajectory
 from l2calib.recipe import Recipe
-from l2calib.train.env import make_env, merge_shares
+from l2calib.train.env import BlockCosts, make_env, merge_block_shares, merge_shares
 
 
 def resolve_workers(candidates: int, workers: int | str) -> int:
@@ -142,14 +142,10 @@ def score_batch(env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | No
 
 def block_costs(
     env, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None, block_s: float
-) -> tuple[np.ndarray, int, list[np.ndarray]]:
+) -> BlockCosts:
     """The pose cost of ``N`` candidates per block of data, spread over the env's workers.
 
-    See :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`.
-
-    Returns:
-        ``[N, B]`` costs in candidate order, the scans counted, and the first candidate's
-        per-scan costs on each segment (``[S_i]`` arrays, valid scans only).
+    See :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`; costs in candidate order.
     """
     from l2calib.train.env import ScoringEnv
 
@@ -157,12 +153,7 @@ def block_costs(
         return env.block_cost_share(T_imu_lidar, time_offset_s, 1, block_s)
     n = env.num_workers
     shares = _started(env).block_cost_share(T_imu_lidar, time_offset_s, n, block_s)
-    width = max(c.shape[1] for c, _, _ in shares)
-    out = np.zeros((T_imu_lidar.shape[0], width))
-    for i, (costs, _, _) in enumerate(shares):
-        if costs.shape[0]:
-            out[i::n] = costs
-    return out, max(scans for _, scans, _ in shares), shares[0][2]  # worker 0 has candidate 0
+    return merge_block_shares(shares, T_imu_lidar.shape[0])
 
 
 def trajectory_previews(

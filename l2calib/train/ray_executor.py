@@ -25,13 +25,12 @@ import os
 from collections.abc import Sequence
 from typing import Any
 
-import numpy as np
 import torch
 
 from l2calib.errors import ConfigError
 from l2calib.recipe import Recipe
 from l2calib.recipe_train import RayConfig
-from l2calib.train.env import ScoringEnv, merge_shares
+from l2calib.train.env import ScoringEnv, merge_block_shares, merge_shares
 
 #: How often Ray restarts a dead actor, and retries the call it was running, before giving up.
 ACTOR_RESTARTS = 4
@@ -201,9 +200,9 @@ class RayScoringEnv(ScoringEnv):
         return self._get([future])[0]
 
     def block_cost_share(self, T_imu_lidar, time_offset_s, num_workers: int, block_s: float):
-        """``[N, B]`` pose costs per block of data, the candidates split over the actors.
+        """Pose costs per block of data, the candidates split over the actors.
 
-        Also the scans counted and the first candidate's per-scan costs per segment (see
+        A :class:`~l2calib.train.env.BlockCosts` (see
         :meth:`~l2calib.train.env.CalibrationEnv.block_cost_share`).
         """
         n = min(self.num_actors, T_imu_lidar.shape[0])
@@ -215,11 +214,7 @@ class RayScoringEnv(ScoringEnv):
                     T_imu_lidar[i::n], offsets, self.fraction, block_s
                 )
             )
-        parts = self._get(futures)
-        out = np.zeros((T_imu_lidar.shape[0], parts[0][0].shape[1]))
-        for i, (costs, _, _) in enumerate(parts):
-            out[i::n] = costs
-        return out, parts[0][1], parts[0][2]  # actor 0 has candidate 0
+        return merge_block_shares(self._get(futures), T_imu_lidar.shape[0])
 
     def terminate(self) -> None:
         """Kills the actors at once (an interrupted run: they may be mid-batch)."""

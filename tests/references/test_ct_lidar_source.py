@@ -208,7 +208,7 @@ def test_without_runs_each_segment_gets_its_warm_up(swing, monkeypatch, tmp_path
         seen["warmup"] = warmup
         raise Seen
 
-    monkeypatch.setattr(ct_lidar_source, "run_segment", capture)
+    monkeypatch.setattr(ct_lidar_source, "run_segment_passes", capture)
     with pytest.raises(Seen):
         build(tmp_path, [swing.sequence], cache=False, from_start_s=0).compute([swing.segment])
     first = swing.segment.scans[0].stamp_ns

@@ -92,6 +92,15 @@ def test_segments_cut_from_one_run_cover_their_points_and_are_cached(
     )
 
 
+def test_a_run_whose_backward_pass_loses_track_has_no_alternative(swing, two, tmp_path):
+    """Cold at the end of a hand-held swing, the backward pass loses track: one estimate only."""
+    refs = build(tmp_path, [swing.sequence], backward_pass=True).compute(two)
+    forward = build(tmp_path, [swing.sequence]).compute(two)  # the same run, one pass
+    for ref, fwd in zip(refs, forward, strict=True):
+        assert ref.alternative is None
+        np.testing.assert_allclose(ref.trajectory.t_world_body, fwd.trajectory.t_world_body)
+
+
 def test_a_run_that_loses_track_leaves_each_segment_to_its_own_start(
     swing, two, tmp_path, monkeypatch
 ):
@@ -99,14 +108,14 @@ def test_a_run_that_loses_track_leaves_each_segment_to_its_own_start(
         raise ReferenceLostTrackError("ct-lidar lost track 1.0 s into the run")
 
     calls = []
-    real = ct_lidar_source.run_segment
+    real = ct_lidar_source.run_segment_passes
 
     def per_segment(scans, warmup, *a, **k):
         calls.append(len(warmup))
         return real(scans, warmup, *a, **k)
 
     monkeypatch.setattr(ct_lidar_source.CtLidarReference, "_compute_run", lost)
-    monkeypatch.setattr(ct_lidar_source, "run_segment", per_segment)
+    monkeypatch.setattr(ct_lidar_source, "run_segment_passes", per_segment)
     refs = build(tmp_path, [swing.sequence], cache=False).compute(two)
     assert [r.segment for r in refs] == [s.name for s in two]
     assert len(calls) == 2 and all(n > 0 for n in calls)  # each with its warm-up scans

@@ -86,12 +86,20 @@ def test_auto_runs_the_backward_pass_on_a_drive_only_and_it_tracks(drive, tmp_pa
     assert spec.build({"cache_dir": str(tmp_path)}).options.backward_pass is False
     assert on.options.backward_pass is True and on.notes
     assert off.options.backward_pass is False and not off.notes
-    both = on.compute([drive.segment])[0].trajectory
-    fwd = off.compute([drive.segment])[0].trajectory
+    ref = on.compute([drive.segment])[0]
+    both = ref.trajectory
+    alone = off.compute([drive.segment])[0]
+    fwd = alone.trajectory
     np.testing.assert_array_equal(both.stamps_ns, fwd.stamps_ns)
     assert not np.allclose(both.t_world_body, fwd.t_world_body)
     gt = drive.run.gt_lidar
     assert ape(gt, both).rmse_t < 0.015, ape(gt, both).rmse_t
+    # the forward pass alone rides along as the reference's alternative (the uncertainty's
+    # reference-error term), from the cache too; a single pass has none
+    assert alone.alternative is None
+    for r in (ref, spec.build(auto, planar_motion=True).compute([drive.segment])[0]):
+        np.testing.assert_array_equal(r.alternative.stamps_ns, both.stamps_ns)
+        np.testing.assert_allclose(r.alternative.t_world_body, fwd.t_world_body)
 
 
 def test_the_pipeline_turns_it_on_for_a_drive_says_so_and_starts_it_after_the_segment(
@@ -128,4 +136,21 @@ def test_the_cache_key_names_the_backward_pass_only_when_it_runs(tmp_path):
     off = spec.build({"cache_dir": str(tmp_path)}).key_options()
     on = spec.build({"cache_dir": str(tmp_path), "backward_pass": True}).key_options()
     assert "backward_pass" not in off  # references cached before the option keep their keys
-    assert on.pop("backward_pass") is True and on == off
+    assert on.pop("backward_pass") is True and on.pop("alternative") == "forward pass"
+    assert on == off
+
+
+def test_a_segment_cut_from_a_run_with_both_passes_carries_the_forward_pass(drive, tmp_path):
+    """The shared-run path (the recording's start): its cut of the forward pass rides along."""
+    spec = get_plugin("l2calib.references", "ct-lidar")
+    seqs = [drive.sequence]
+    both = spec.build({"cache_dir": str(tmp_path), "backward_pass": True}, sequences=seqs)
+    one = spec.build({"cache_dir": str(tmp_path)}, sequences=seqs)
+    ref, fwd = both.compute([drive.segment])[0], one.compute([drive.segment])[0]
+    assert "@" in ref.trajectory.world_frame  # cut from a run (ct_runs), not the segment's own
+    np.testing.assert_array_equal(ref.alternative.stamps_ns, ref.trajectory.stamps_ns)
+    np.testing.assert_allclose(ref.alternative.t_world_body, fwd.trajectory.t_world_body)
+    assert not np.allclose(ref.alternative.t_world_body, ref.trajectory.t_world_body)
+    cached = spec.build({"cache_dir": str(tmp_path), "backward_pass": True}, sequences=seqs)
+    again = cached.compute([drive.segment])[0]
+    np.testing.assert_array_equal(again.alternative.t_world_body, ref.alternative.t_world_body)

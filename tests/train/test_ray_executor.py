@@ -124,8 +124,9 @@ def test_batches_of_any_size_score_alike_on_actors(ray_instance, fake_backend_en
         for n in (1, 5):
             T = probe(torch.eye(4, dtype=torch.float64))[:n]
             assert torch.equal(score_batch(remote, T).reward, score_batch(local, T).reward)
-            costs, scans, centre = block_costs(remote, T, None, 2.0)  # the uncertainty's batch
-            expected, expected_scans, expected_centre = block_costs(local, T, None, 2.0)
+            costs, scans, centre, alt = block_costs(remote, T, None, 2.0)  # the uncertainty's
+            expected, expected_scans, expected_centre, _ = block_costs(local, T, None, 2.0)
+            assert alt is None  # no reference brings an alternative
             assert costs.shape == expected.shape and scans == expected_scans
             assert (costs == expected).all()
             assert all((a == b).all() for a, b in zip(centre, expected_centre, strict=True))

@@ -1,5 +1,6 @@
 from __future__ import annotations
 
+import dataclasses
 import math
 import shutil
 
@@ -85,12 +86,25 @@ def test_the_reports_trajectories_come_from_the_open_training_env(fake_backend_e
     assert not torch.allclose(torch.as_tensor(one["before"]), torch.as_tensor(one["after"]))
 
 
+def _drifted(traj):
+    """``traj`` with its positions drifting 1 cm/s along x."""
+    from l2calib.trajectory import Trajectory
+
+    dt = (traj.stamps_ns - traj.stamps_ns[0]) * 1e-9
+    p = traj.t_world_body + np.outer(0.01 * dt, [1.0, 0.0, 0.0])
+    return Trajectory(traj.stamps_ns, p, traj.quat_xyzw, traj.body_frame, traj.world_frame)
+
+
 @pytest.mark.parametrize("n", [1, 5, 12])
 def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     from l2calib import geometry as geo
     from l2calib.train.env_build import block_costs, make_training_env, score_batch
 
     data = _data()
+    # a second estimate of each reference (a drift of 1 cm/s along x): its costs merge alike
+    data.references = [
+        dataclasses.replace(r, alternative=_drifted(r.trajectory)) for r in data.references
+    ]
     recipe = _recipe(workers=2)
     T = probe(torch.eye(4, dtype=torch.float64))[:n]
     T[:, :3, :3] = geo.so3_exp(0.1 * torch.randn(n, 3, dtype=torch.float64)) @ T[:, :3, :3]
@@ -99,14 +113,16 @@ def test_batches_of_any_size_score_alike_on_workers(fake_backend_env, n):
     try:
         expected = score_batch(local, T)
         got = score_batch(workers, T)  # split over 2 processes, any n (fewer than workers too)
-        costs, scans, centre = block_costs(workers, T, None, 2.0)  # the uncertainty's batch
-        costs_local, scans_local, centre_local = block_costs(local, T, None, 2.0)
+        costs, scans, centre, alt = block_costs(workers, T, None, 2.0)  # the uncertainty's
+        costs_local, scans_local, centre_local, alt_local = block_costs(local, T, None, 2.0)
     finally:
         workers.close()
     # per-block costs: the same candidates in the same order, summing to the reward's errors
     assert costs.shape == costs_local.shape and costs.shape[0] == n and costs.shape[1] >= 2
     np.testing.assert_allclose(costs, costs_local)
     assert scans == scans_local
+    np.testing.assert_allclose(alt, alt_local)  # against the alternatives: merged alike
+    assert alt.shape == costs.shape and not np.allclose(alt, costs)
     # the first candidate's per-scan costs, per segment: the same series, summing to its blocks
     assert len(centre) == len(centre_local) == len(data.segments)
     for a, b in zip(centre, centre_local, strict=True):
