@@ -203,8 +203,6 @@ def estimate(
 
     Args:
         block_costs: ``[P, B]`` cost of each :func:`candidates` candidate on each block.
-        alternative_costs: ``[P, B]`` the same against the reference's alternative (the
-            reference-error term ``r``), or ``None``.
         scans: Scans that entered the cost (``S``).
         tau: The residuals' integrated autocorrelation time at the result (scans;
             :func:`correlation_time`), which divides ``S`` in the misfit term.
@@ -212,6 +210,8 @@ def estimate(
             vehicle's vertical lever arm), or ``None``. It is left out of the fit (its moves are
             undone by the hold, up to a tilt's leak) and reported with an infinite bound, in
             ``held``, not judged.
+        alternative_costs: ``[P, B]`` the same against the reference's alternative (the
+            reference-error term ``r``), or ``None``.
     """
     from scipy import stats
 
