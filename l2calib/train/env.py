@@ -174,12 +174,15 @@ class CalibrationEnv(ScoringEnv):
 
     def _reference_at(self, index: int, segment: str, stamps_ns: np.ndarray):
         if segment not in self._ref_cache:
-            ref = self.references[index].trajectory
-            sampled, ok = ref.sample(stamps_ns, self.reward_config.max_gap_s)
-            T = torch.zeros(len(stamps_ns), 4, 4, dtype=F64)
-            T[torch.from_numpy(ok)] = sampled.matrices()
-            self._ref_cache[segment] = (T, torch.from_numpy(ok))
+            self._ref_cache[segment] = self._sampled(self.references[index].trajectory, stamps_ns)
         return self._ref_cache[segment]
+
+    def _sampled(self, trajectory, stamps_ns: np.ndarray) -> tuple[torch.Tensor, torch.Tensor]:
+        """``trajectory``'s poses ``[N, 4, 4]`` at ``stamps_ns`` (zeros where none) and the mask."""
+        sampled, ok = trajectory.sample(stamps_ns, self.reward_config.max_gap_s)
+        T = torch.zeros(len(stamps_ns), 4, 4, dtype=F64)
+        T[torch.from_numpy(ok)] = sampled.matrices()
+        return T, torch.from_numpy(ok)
 
     def score_candidates(
         self, T_imu_lidar: torch.Tensor, time_offset_s: torch.Tensor | None = None
@@ -282,27 +285,30 @@ class CalibrationEnv(ScoringEnv):
         T, offsets = T_imu_lidar[share], None if time_offset_s is None else time_offset_s[share]
         if self.hold is not None:
             T = self.hold.apply(T)
+        has_alt = any(r.alternative is not None for r in self.references)
         blocks, alt_blocks, scans, first = [], [], 0, []
         outputs = self.backend.evaluate(T, self._offsets(T, offsets)) if T.shape[0] else []
         for i, o in enumerate(outputs):
             T_ref, ok = self._reference_at(i, o.segment, o.stamps_ns)
             valid = o.valid & ok[None]
             cost = self._pose_cost(i, T_ref, o.T_world_lidar, valid)
-            alt = self._alternative_at(i, o.segment, o.stamps_ns)
-            alt_cost = (
-                cost if alt is None else self._pose_cost(i, alt[0], o.T_world_lidar, valid & alt[1])
-            )
             b = block_index(o.stamps_ns * 1e-9, block_s)
-            blocks += [cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
-            alt_blocks += [alt_cost[:, b == j].sum(1) for j in range(int(b.max(initial=-1)) + 1)]
+            per_block = [b == j for j in range(int(b.max(initial=-1)) + 1)]
+            blocks += [cost[:, m].sum(1) for m in per_block]
+            if has_alt:  # a segment without one counts its main cost (no shift there)
+                alt = self._alternative_at(i, o.segment, o.stamps_ns)
+                alt_cost = (
+                    cost
+                    if alt is None
+                    else self._pose_cost(i, alt[0], o.T_world_lidar, valid & alt[1])
+                )
+                alt_blocks += [alt_cost[:, m].sum(1) for m in per_block]
             scans += int(ok.sum())
             first.append(cost[0, valid[0].numpy()])
         if not blocks:
             return BlockCosts(np.zeros((T.shape[0], 0)), scans, first, None)
-        has_alt = any(r.alternative is not None for r in self.references)
-        return BlockCosts(
-            np.stack(blocks, 1), scans, first, np.stack(alt_blocks, 1) if has_alt else None
-        )
+        alternative = np.stack(alt_blocks, 1) if has_alt else None
+        return BlockCosts(np.stack(blocks, 1), scans, first, alternative)
 
     def _pose_cost(self, i: int, T_ref: torch.Tensor, T_est: torch.Tensor, valid: torch.Tensor):
         """``[k, N]`` per-scan costs ``e_t / 4 + e_r / π²`` on segment ``i`` (0 where invalid)."""
@@ -312,15 +318,11 @@ class CalibrationEnv(ScoringEnv):
 
     def _alternative_at(self, index: int, segment: str, stamps_ns: np.ndarray):
         """The reference's alternative ``[N, 4, 4]`` and ``[N]`` mask at ``stamps_ns``, or None."""
-        if self.references[index].alternative is None:
+        alternative = self.references[index].alternative
+        if alternative is None:
             return None
         if segment not in self._alt_cache:
-            sampled, ok = self.references[index].alternative.sample(
-                stamps_ns, self.reward_config.max_gap_s
-            )
-            T = torch.zeros(len(stamps_ns), 4, 4, dtype=F64)
-            T[torch.from_numpy(ok)] = sampled.matrices()
-            self._alt_cache[segment] = (T, torch.from_numpy(ok))
+            self._alt_cache[segment] = self._sampled(alternative, stamps_ns)
         return self._alt_cache[segment]
 
     def trajectory_share(
