@@ -386,7 +386,7 @@ def _attempt(
     ``start`` the rotation start from the rates (:mod:`l2calib.train.rotation_start`) or None,
     ``t_start`` the translation start from the accelerations (:mod:`l2calib.train.lever_start`).
     """
-    from l2calib.assess import sensitivity
+    from l2calib.assess import sensitivity, uncertainty
     from l2calib.assess.refine import refine
     from l2calib.assess.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.plugins import get_plugin
@@ -477,6 +477,8 @@ def _attempt(
     if cfg.uncertainty.enabled:
         say("estimating each axis's uncertainty from the data (95 % bounds)")
         axis_unc = estimate_axis_uncertainty(env, T_mode, best.time_offset_s, hold, cfg.uncertainty)
+        drives = len({seg.sequence for seg in data.segments})
+        axis_unc.caveats = uncertainty.reference_caveats(axis_unc, drives)
     stage_s["probe"] = time.monotonic() - clock
     unc = policy.uncertainty() if hold is None else hold.policy_spread(policy.uncertainty())
     sources = sorted({r.source for r in data.references})

@@ -64,6 +64,11 @@ def test_the_per_axis_bounds_are_written_in_the_users_units(tmp_path):
     written = yaml.safe_load(path.read_text())["uncertainty"]
     assert written["bound95_reference_translation_m"] == [0.003, 0.001, 0.0]
     assert written["bound95_reference_rotation_deg"] == [0.02, 0.0, 0.0]
+    assert "bound95_caveats" not in written
+    unc.caveats = ["one drive and a LiDAR-only reference: ..."]
+    path = write_calibration(tmp_path / "c2.yaml", CalibrationResult(_T(), axis_uncertainty=unc))
+    written = yaml.safe_load(path.read_text())["uncertainty"]
+    assert written["bound95_caveats"] == unc.caveats
 
 
 def test_unreliable_result_warns_above_the_paste_ready_blocks(tmp_path):
@@ -197,3 +202,6 @@ def test_the_printed_table_shows_the_references_part_of_the_bound_only_when_ther
     unc.reference95 = np.array([0, 0, 0, 0.004, 0.009, 0.0])
     row = next(x for x in printed().splitlines() if "reference's error" in x)
     assert "±0.40" in row and "±0.90" in row and "held" in row
+    assert "not in the 95 % bounds" not in printed()
+    unc.caveats = ["one drive and a LiDAR-only reference: the drift both passes share"]
+    assert "not in the 95 % bounds: one drive and a LiDAR-only reference" in printed()

@@ -72,3 +72,18 @@ def test_a_missing_compare_file_is_a_clear_error(small_bag, tmp_path, capsys):
     assert exc.value.code == 1
     err = capsys.readouterr().err
     assert "nope.tum" in err and "no such file" in err
+
+
+def test_a_usage_error_is_a_message_not_a_traceback(tmp_path, capsys):
+    """``--set`` takes one field per flag; extra arguments get click's usage message, exit 2."""
+    from l2calib.cli.app import main
+
+    with pytest.raises(SystemExit) as exc:
+        main(
+            ["calibrate", "simulator", "--bag", str(tmp_path / "a.bag"), "--out",
+             str(tmp_path / "o"), "--set", "train.seed=1", "selection.budget_s=60"]
+        )  # fmt: skip
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert "unexpected extra argument" in err and "selection.budget_s=60" in err
+    assert "Traceback" not in err

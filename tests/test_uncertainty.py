@@ -94,6 +94,20 @@ def test_the_reference_term_is_the_shift_of_the_minimum_against_its_alternative(
     assert held.reference95[5] == 0 and np.isinf(held.bound95[5])
 
 
+def test_one_drive_from_a_lidar_only_reference_is_named_as_not_covered():
+    """The caveat needs a held axis (planar motion), a reference term and one recording."""
+    mu = np.random.default_rng(6).normal(size=(8, 6)) * 1e-4
+    d = np.array([0, 0, 0, 0.004, 0.008, 0.0])
+    drive = unc.estimate(block_costs(mu), 10**9, held_axis=5, alternative_costs=block_costs(mu + d))
+    (caveat,) = unc.reference_caveats(drive, drives=1)
+    assert "one drive" in caveat and "three drives" in caveat
+    assert unc.reference_caveats(drive, drives=3) == []  # several drives average it down
+    exact = unc.estimate(block_costs(mu), 10**9, held_axis=5)  # no second reference estimate
+    assert unc.reference_caveats(exact, drives=1) == []
+    hand = unc.estimate(block_costs(mu), 10**9, alternative_costs=block_costs(mu + d))
+    assert unc.reference_caveats(hand, drives=1) == []  # not planar: no held axis
+
+
 def _ar1(phi: float, n: int, seed: int) -> np.ndarray:
     rng, x = np.random.default_rng(seed), np.zeros(n)
     for k in range(1, n):

@@ -217,6 +217,8 @@ def _bounds(unc: Any | None) -> dict[str, Any]:
     if ref is not None and np.any(ref > 0):
         out["bound95_reference_rotation_deg"] = vals(ref[:3], 180 / np.pi, 4)
         out["bound95_reference_translation_m"] = vals(ref[3:6], 1.0, 5)
+    if getattr(unc, "caveats", None):
+        out["bound95_caveats"] = list(unc.caveats)
     from l2calib.assess.uncertainty import AXIS_NAMES
 
     if unc.held:

@@ -56,7 +56,7 @@ from l2calib.assess.polish import STEPS, derivatives, moved, stencil
 
 __all__ = [
     "BLOCK_S", "AxisUncertainty", "block_index", "candidates", "correlation_time", "estimate",
-    "undetermined",
+    "reference_caveats", "undetermined",
 ]  # fmt: skip
 
 #: Length of the blocks whose gradients measure the data's noise (s).
@@ -100,6 +100,8 @@ class AxisUncertainty:
             axis is undetermined, as the caller judged it (``train.uncertainty``), or ``None``.
         held: The translation axis held rather than estimated (the ground vehicle's vertical
             lever arm): left out of the fit, ``inf`` bound, not judged by :func:`undetermined`.
+        caveats: What the bounds are known not to cover on this data (set by the caller:
+            :func:`reference_caveats`).
     """
 
     bound95: np.ndarray
@@ -115,6 +117,7 @@ class AxisUncertainty:
     reference95: np.ndarray | None = None
     evaluations: int = 0
     limits: tuple[float, float, float] | None = None
+    caveats: list[str] = field(default_factory=list)
 
     @property
     def rotation_deg(self) -> list[float]:
@@ -253,6 +256,33 @@ def estimate(
         bound, noise95, step, misfit, flat, B, int(scans), cost, held, tau=tau,
         reference95=reference95,
     )  # fmt: skip
+
+
+def reference_caveats(unc: AxisUncertainty, drives: int) -> list[str]:
+    """What the bounds miss on one drive from a LiDAR-only reference (issue 27), or nothing.
+
+    On planar motion (a held vertical axis) the horizontal lever arm rests on the drive's few
+    turns, and a LiDAR-only reference's drift over them moves the result in a way the data cannot
+    tell from the lever arm. ``r`` (the reference's two passes) sees the part of that error the
+    passes disagree on, not the part they share: on the simulator's one-drive runs the lateral
+    error was outside its bound on all six 16-beam runs (1.9–2.4 cm against 1.5–1.6 cm), inside
+    on the 32-beam and the three-drive runs (``benchmarks/results/uncertainty.json``).
+
+    Args:
+        unc: The bounds; the caveat needs a held axis and a reference term (``reference95``).
+        drives: Recordings the segments come from.
+    """
+    ref = unc.reference95
+    if not unc.held or ref is None or not np.any(ref[3:6] > 0) or drives != 1:
+        return []
+    return [
+        "one drive and a LiDAR-only reference: the horizontal lever arm rests on the drive's "
+        "few turns and on the reference's drift over them, and the part of that drift both of "
+        "the reference's passes share is not in these bounds (simulated 16-beam drives: lateral "
+        "errors 1.9-2.4 cm against bounds of 1.5-1.6 cm; 32-beam drives and three drives "
+        "together stayed inside); calibrate two or three drives together, or use an exact "
+        "reference (gt-file, rtk)"
+    ]
 
 
 def undetermined(

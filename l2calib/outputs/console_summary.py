@@ -101,6 +101,8 @@ def print_result(console, result, truth=None) -> None:
             "(per-axis rotation error: Euler angles of R_gtᵀ R_est)"
         )
     console.print(table)
+    for caveat in getattr(unc, "caveats", None) or []:
+        console.print(f"[yellow]not in the 95 % bounds[/]: {caveat}", highlight=False)
     if result.time_offset_s is not None:
         res = result.time_offset_resolution
         how = "" if res is None else f", resolution {_ms(res.resolution_s)}"

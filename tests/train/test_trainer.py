@@ -55,6 +55,7 @@ def test_training_runs_and_counts_evaluations(fake_backend_env, tmp_path):
     assert result.evaluations == 3 * 8 + n_refine + n_probes + n_bounds
     assert len(result.resolution.rotation_deg) == 3
     assert len(result.axis_uncertainty.bound95) == 7 and result.axis_uncertainty.blocks >= 2
+    assert result.axis_uncertainty.caveats == []  # hand-held: nothing named beyond the bounds
     assert result.reference_agreement["translation_m"] >= 0  # odometry vs reference at the result
     assert (tmp_path / "checkpoint.pt").is_file()
     assert (tmp_path / "metrics" / "scalars" / "reward_mean.csv").is_file()
