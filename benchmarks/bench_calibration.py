@@ -490,6 +490,7 @@ def main() -> None:
     parser.add_argument(
         "--set",
         nargs="*",
+        action="extend",  # --set a b and --set a --set b alike (a plain list kept the last)
         default=[],
         metavar="KEY=VALUE",
         help="extra recipe overrides for every case run (an experiment: the case's name gets "

@@ -218,9 +218,13 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--cases", nargs="+", default=["hh16-0", "hh16-1", "uav16-11"])
     parser.add_argument("--duration", type=float, default=12.0)
-    parser.add_argument("--set", nargs="*", default=[], help="CtLidarOptions field=value")
+    parser.add_argument(
+        "--set", nargs="*", action="extend", default=[], help="CtLidarOptions field=value"
+    )
     parser.add_argument("--terms", action="store_true", help="per-term errors per second")
-    parser.add_argument("--lidar", nargs="*", default=[], help="sim config lidar field=value")
+    parser.add_argument(
+        "--lidar", nargs="*", action="extend", default=[], help="sim config lidar field=value"
+    )
     parser.add_argument(
         "--no-beam-azimuth", action="store_true", help="Ouster presets without beam azimuths"
     )

@@ -198,7 +198,11 @@ def main() -> None:
     parser.add_argument("--reward", default="paper", choices=["paper", "position"])
     parser.add_argument("--lowpass-half-s", type=float, default=2.0)
     parser.add_argument(
-        "--set", nargs="*", default=[], help="budget=S window=S (selection), r.NAME=V (reference)"
+        "--set",
+        nargs="*",
+        action="extend",  # --set a b and --set a --set b alike (a plain list kept the last)
+        default=[],
+        help="budget=S window=S (selection), r.NAME=V (reference)",
     )
     parser.add_argument("--out", type=Path, default=RESULTS)
     args = parser.parse_args()
