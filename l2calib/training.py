@@ -478,7 +478,8 @@ def _attempt(
         say("estimating each axis's uncertainty from the data (95 % bounds)")
         axis_unc = estimate_axis_uncertainty(env, T_mode, best.time_offset_s, hold, cfg.uncertainty)
         drives = len({seg.sequence for seg in data.segments})
-        axis_unc.caveats = uncertainty.reference_caveats(axis_unc, drives)
+        one_way = None if hold is None else hold.motion.one_way_share
+        axis_unc.caveats = uncertainty.reference_caveats(axis_unc, drives, one_way)
     stage_s["probe"] = time.monotonic() - clock
     unc = policy.uncertainty() if hold is None else hold.policy_spread(policy.uncertainty())
     sources = sorted({r.source for r in data.references})

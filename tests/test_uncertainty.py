@@ -102,6 +102,9 @@ def test_one_drive_from_a_lidar_only_reference_is_named_as_not_covered():
     (caveat,) = unc.reference_caveats(drive, drives=1)
     assert "one drive" in caveat and "three drives" in caveat
     assert unc.reference_caveats(drive, drives=3) == []  # several drives average it down
+    assert unc.reference_caveats(drive, 1, one_way_share=0.5) == [caveat]  # turns both ways
+    (loop,) = unc.reference_caveats(drive, 1, one_way_share=0.98)
+    assert loop.startswith(caveat) and "the turns all go one way (98 %" in loop
     exact = unc.estimate(block_costs(mu), 10**9, held_axis=5)  # no second reference estimate
     assert unc.reference_caveats(exact, drives=1) == []
     hand = unc.estimate(block_costs(mu), 10**9, alternative_costs=block_costs(mu + d))

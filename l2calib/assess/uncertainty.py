@@ -258,7 +258,14 @@ def estimate(
     )  # fmt: skip
 
 
-def reference_caveats(unc: AxisUncertainty, drives: int) -> list[str]:
+#: Above this share of the turning in one direction (:attr:`~l2calib.selection.planar.
+#: PlanarMotion.one_way_share`) the caveat also says the turns all go one way.
+ONE_WAY_SHARE = 0.9
+
+
+def reference_caveats(
+    unc: AxisUncertainty, drives: int, one_way_share: float | None = None
+) -> list[str]:
     """What the bounds miss on one drive from a LiDAR-only reference (issue 27), or nothing.
 
     On planar motion (a held vertical axis) the horizontal lever arm rests on the drive's few
@@ -268,20 +275,36 @@ def reference_caveats(unc: AxisUncertainty, drives: int) -> list[str]:
     error was outside its bound on all six 16-beam runs (1.9–2.4 cm against 1.5–1.6 cm), inside
     on the 32-beam and the three-drive runs (``benchmarks/results/uncertainty.json``).
 
+    A drive whose turns all go one way (a loop) adds up any reference error that follows the
+    turning, like a lateral lever arm: on the simulator's loops, driven the other way round,
+    the LiDAR-only reference's share of the lateral result changed sign (+2.3 → −2.0 cm on the
+    VLP-16 drive, +1.0 → −1.1 cm on the OS1-16 drive; docs/backends.md, "Not loop closure"),
+    so the caveat then says so.
+
     Args:
         unc: The bounds; the caveat needs a held axis and a reference term (``reference95``).
         drives: Recordings the segments come from.
+        one_way_share: :attr:`~l2calib.selection.planar.PlanarMotion.one_way_share` of the
+            selected data (``None``: unknown).
     """
     ref = unc.reference95
     if not unc.held or ref is None or not np.any(ref[3:6] > 0) or drives != 1:
         return []
+    one_way = ""
+    if one_way_share is not None and one_way_share >= ONE_WAY_SHARE:
+        one_way = (
+            f"; and the turns all go one way ({100 * one_way_share:.0f} % of the turning): a "
+            "reference error that follows the turning adds up like a lateral lever arm (on "
+            "simulated loops driven the other way round it moved the lateral result the other "
+            "way, by 1-2 cm), so a drive that also turns the other way helps"
+        )
     return [
         "one drive and a LiDAR-only reference: the horizontal lever arm rests on the drive's "
         "few turns and on the reference's drift over them, and the part of that drift both of "
         "the reference's passes share is not in these bounds (simulated 16-beam drives: lateral "
         "errors 1.9-2.4 cm against bounds of 1.5-1.6 cm; 32-beam drives and three drives "
         "together stayed inside); calibrate two or three drives together, or use an exact "
-        "reference (gt-file, rtk)"
+        f"reference (gt-file, rtk){one_way}"
     ]
 
 

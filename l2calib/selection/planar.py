@@ -30,6 +30,9 @@ from l2calib.data import ImuSamples
 
 #: Samples turning slower than this (rad/s) carry no rotation to judge (still, or noise).
 MIN_RATE_RAD_S = 0.02
+#: A turn, not sway: the rate about the dominant axis above which a sample counts as turning
+#: for :attr:`PlanarMotion.one_way_share` (rad/s; 5.7 deg/s).
+TURN_RATE_RAD_S = 0.1
 #: Below this many turning samples the motion is not judged (too little rotation).
 MIN_TURNING_SAMPLES = 100
 
@@ -46,6 +49,9 @@ class PlanarMotion:
         turning_samples: IMU samples with ``|ω|`` above :data:`MIN_RATE_RAD_S`.
         tilt_deg: Angle between the axis and "up" (deg): about 0 for a vehicle on level
             ground, the mean slope on a hillside.
+        one_way_share: ``|Σ ω·axis| / Σ |ω·axis|`` over the samples turning about the axis
+            faster than :data:`TURN_RATE_RAD_S` (turns, not sway): 1 when every turn goes the
+            same way (a loop), about 0 when the turns go both ways equally (a figure-8).
     """
 
     axis_imu: np.ndarray
@@ -53,6 +59,7 @@ class PlanarMotion:
     off_axis_rms_rad_s: float
     turning_samples: int
     tilt_deg: float = 0.0
+    one_way_share: float = 0.0
 
     def planar(self, min_yaw_share: float) -> bool:
         """Whether the motion is yaw-dominant enough to leave the vertical lever arm flat."""
@@ -91,12 +98,15 @@ def planar_motion(imus: Iterable[ImuSamples]) -> PlanarMotion:
     axis = evecs[:, 2] if evecs[:, 2] @ up >= 0 else -evecs[:, 2]
     about = turning @ axis
     off = turning - about[:, None] * axis[None]
+    turns = about[np.abs(about) > TURN_RATE_RAD_S]
+    one_way = float(abs(turns.sum()) / np.abs(turns).sum()) if len(turns) else 0.0
     return PlanarMotion(
         axis_imu=axis,
         yaw_share=float(evals[2] / max(float(evals.sum()), 1e-300)),
         off_axis_rms_rad_s=float(np.sqrt(np.mean(np.sum(off**2, axis=1)))),
         turning_samples=int(len(turning)),
         tilt_deg=float(np.degrees(np.arccos(np.clip(axis @ up, -1.0, 1.0)))),
+        one_way_share=one_way,
     )
 
 

@@ -37,6 +37,23 @@ def test_planar_drive_is_found_and_its_up_axis_follows_the_mounting():
     assert np.allclose(tilted.axis_imu, expect, atol=0.02)
 
 
+def test_a_loop_turns_one_way_and_a_figure_eight_both():
+    t = np.arange(0.0, 60.0, 0.005)
+    up = np.tile([0.0, 0.0, 9.81], (len(t), 1))
+
+    def drive(yaw_rate):  # planar: rate about the vertical only
+        return planar_motion(
+            [ImuSamples((t * 1e9).astype(np.int64), np.c_[0 * t, 0 * t, yaw_rate], up)]
+        )
+
+    turns = np.where(np.sin(2 * np.pi * t / 15) > 0.5, 0.4, 0.0)  # a 0.4 rad/s turn every 15 s
+    loop = drive(turns + 0.03 * np.sin(3 * t))  # left turns only, with sway
+    eight = drive(turns * np.sign(np.sin(2 * np.pi * t / 30)) + 0.03 * np.sin(3 * t))
+    assert loop.planar(0.9) and eight.planar(0.9)
+    assert loop.one_way_share > 0.99
+    assert eight.one_way_share < 0.2  # the turns alternate: left, right, left, ...
+
+
 def test_hand_held_and_still_data_are_not_planar():
     hand = planar_motion([_imu((0.5, 0.5, 0.8))])
     assert hand.yaw_share < 0.6 and not hand.planar(0.9)
