@@ -277,8 +277,8 @@ def reference_caveats(
 
     A drive whose turns all go one way (a loop) adds up any reference error that follows the
     turning, like a lateral lever arm: on the simulator's loops, driven the other way round,
-    the LiDAR-only reference's share of the lateral result changed sign (+2.3 → −2.0 cm on the
-    VLP-16 drive, +1.0 → −1.1 cm on the OS1-16 drive; docs/backends.md, "Not loop closure"),
+    the LiDAR-only reference's share of the reward's lateral peak changed sign (+2.3 → −2.0 cm on
+    the VLP-16 drive, +1.0 → −1.1 cm on the OS1-16 drive; docs/backends.md, "Not loop closure"),
     so the caveat then says so.
 
     Args:
@@ -295,8 +295,9 @@ def reference_caveats(
         one_way = (
             f"; and the turns all go one way ({100 * one_way_share:.0f} % of the turning): a "
             "reference error that follows the turning adds up like a lateral lever arm (on "
-            "simulated loops driven the other way round it moved the lateral result the other "
-            "way, by 1-2 cm), so a drive that also turns the other way helps"
+            "simulated loops driven the other way round, the reference moved the reward's "
+            "lateral peak the other way, by 1-2 cm), so a drive that also turns the other way "
+            "helps"
         )
     return [
         "one drive and a LiDAR-only reference: the horizontal lever arm rests on the drive's "
