@@ -116,6 +116,28 @@ def cases(quick: bool) -> list[Case]:
             for model in ("ouster-os1-16", "velodyne-vlp-16", "velodyne-vlp-32c")
             for ref in ("gt", "ct-lidar")
         ),  # fmt: skip
+        # The same drives turning both ways (the issue's own report was a figure-8) or only right
+        # (loop-cw: the same streets as the loop driven backwards). The loop's left turns only are
+        # the LiDAR-only reference's worst case: its lateral bias follows the turn direction
+        # (experiments/reference_error.json, "clockwise" rows); these rows stand beside it.
+        *(
+            Case(
+                f"ugv {path} {model} {ref}",
+                "ugv",
+                [31],
+                60.0,
+                overrides=[*b60, f"reference.name={ref}"],
+                sim={
+                    "lidar": {"model": model},
+                    "imu": {"model": "vn100"},
+                    "rig": RIG,
+                    "world": {"route": path},
+                },
+            )
+            for path in ("figure-8", "loop-cw")
+            for model in ("ouster-os1-16", "velodyne-vlp-16", "velodyne-vlp-32c")
+            for ref in ("gt", "ct-lidar")
+        ),  # fmt: skip
         *(
             Case(
                 f"handheld MID-360 {ref}",

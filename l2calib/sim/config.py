@@ -16,7 +16,7 @@ from l2calib.sim.imu_model import IMU_NAMES
 from l2calib.sim.lidar_models import LIDAR_NAMES
 from l2calib.sim.profiles import PROFILE_NAMES
 from l2calib.sim.rigs import RIG_NAMES, RIGS
-from l2calib.sim.world import WORLD_NAMES
+from l2calib.sim.world import ROUTE_PATHS, WORLD_NAMES
 
 
 def _one_of(value: str | None, names: tuple[str, ...], what: str) -> str | None:
@@ -30,11 +30,21 @@ class WorldOptions(StrictModel):
 
     name: str = Field("urban", description=f"one of: {', '.join(WORLD_NAMES)}")
     seed: int | None = Field(None, description="world seed (default: the run's seed)")
+    route: str = Field(
+        "loop",
+        description="how the route is driven: loop (counter-clockwise, left turns only), loop-cw "
+        "(clockwise) or figure-8 (urban only: both ways, through a cross street)",
+    )
 
     @field_validator("name")
     @classmethod
     def _name(cls, v: str) -> str:
         return _one_of(v, WORLD_NAMES, "world")
+
+    @field_validator("route")
+    @classmethod
+    def _route(cls, v: str) -> str:
+        return _one_of(v, ROUTE_PATHS, "route path")
 
 
 class MotionOptions(StrictModel):

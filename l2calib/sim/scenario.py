@@ -169,7 +169,7 @@ def simulate(config: SimConfig, progress: bool = False) -> SimRun:
     cfg = config.resolved()
     lidar, imu_spec, imu_rate = _specs(cfg)
     T = extrinsic_matrix(cfg.rig.translation_m, cfg.rig.rpy_deg)
-    world = make_world(cfg.world.name, cfg.world.seed)
+    world = make_world(cfg.world.name, cfg.world.seed, path=cfg.world.route)
     rng = np.random.default_rng([cfg.seed, 1])
     lever = float(np.linalg.norm(T[:3, 3]))
     horizon = cfg.duration_s + abs(cfg.rig.time_offset_s) + 1.0

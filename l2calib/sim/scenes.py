@@ -7,12 +7,13 @@ free space around it, clearance included).
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
 
 from l2calib.errors import ConfigError
-from l2calib.sim.world import WORLD_NAMES, Route, World
+from l2calib.sim.world import ROUTE_PATHS, WORLD_NAMES, Route, World
 
 
 class MeshBuilder:
@@ -118,25 +119,49 @@ def _balconies(
                 b.box(x, y, z, sx, sy, 1.0, rng.uniform(0.3, 0.8))
 
 
-def _urban(rng: np.random.Generator, b: MeshBuilder) -> Route:
-    bx, by = rng.uniform(25, 35), rng.uniform(15, 22)
+def _block(
+    rng: np.random.Generator, b: MeshBuilder, spans: list[tuple[float, float]], by: float
+) -> None:
+    """Central block(s): one row of buildings per ``(x0, x1)`` span, ``2 by`` deep.
+
+    Buildings of different heights with narrow gaps, balconies on both long facades.
+    """
+    for lo, hi in spans:
+        edges = np.sort(rng.uniform(lo, hi, size=rng.integers(1, 4)))
+        xs = np.concatenate([[lo], edges, [hi]])
+        for x0, x1 in zip(xs[:-1], xs[1:], strict=True):
+            gap = rng.uniform(0.0, 2.5)
+            if x1 - x0 - gap > 3:
+                sy, h = 2 * by - rng.uniform(0, 3), rng.uniform(6, 25)
+                b.box((x0 + x1) / 2, 0, 0.15, x1 - x0 - gap, sy, h, rng.uniform(0.3, 0.7))
+                for sign in (-1.0, 1.0):  # balconies on both long facades
+                    _balconies(rng, b, (x0 + gap / 2, x1 - gap / 2), sign * (sy / 2 + 0.4), h, 0)
+
+
+def _urban(rng: np.random.Generator, b: MeshBuilder, cross: bool = False) -> Route:
+    """The street ring around a central block (buildings, sidewalks, furniture, parked cars).
+
+    ``cross``: a smaller ring whose block a cross street along ``x = 0`` splits in two, for the
+    ``figure-8`` path (one lap ≈ 210 m, about a minute at 4 m/s).
+    """
+    if cross:
+        bx, by = rng.uniform(18, 22), rng.uniform(7, 9)
+    else:
+        bx, by = rng.uniform(25, 35), rng.uniform(15, 22)
     hx, hy = bx + 8, by + 8  # route: 8 m outside the block, road from -5 to +5 around it
     b.box(0, 0, -0.2, 400, 400, 0.2, 0.25)  # ground (asphalt)
-    b.box(0, 0, 0.0, 2 * (bx + 3), 2 * (by + 3), 0.15, 0.35)  # inner sidewalk with curb
+    if cross:  # the inner sidewalks end 5 m either side of the cross street's centre line
+        for sign in (-1.0, 1.0):
+            b.box(sign * (bx + 8) / 2, 0, 0.0, bx - 2, 2 * (by + 3), 0.15, 0.35)
+            for y in _ring_positions(rng, hy - 9.0, 12.0):  # street lights along it
+                b.cylinder(sign * 6.5, y, 0.15, 0.12, rng.uniform(5, 8), 0.8)
+    else:
+        b.box(0, 0, 0.0, 2 * (bx + 3), 2 * (by + 3), 0.15, 0.35)  # inner sidewalk with curb
     for side in _sides(hx + 6.5, hy + 6.5):  # outer sidewalks, 3 m wide
         length = 2 * side[2] + 3
         sx, sy = (length, 3.0) if side[3] == 0 else (3.0, length)
         b.box(side[0], side[1], 0.0, sx, sy, 0.15, 0.35)
-    # Central block: a row of buildings of different heights with narrow gaps.
-    edges = np.sort(rng.uniform(-bx, bx, size=rng.integers(1, 4)))
-    xs = np.concatenate([[-bx], edges, [bx]])
-    for x0, x1 in zip(xs[:-1], xs[1:], strict=True):
-        gap = rng.uniform(0.0, 2.5)
-        if x1 - x0 - gap > 3:
-            sy, h = 2 * by - rng.uniform(0, 3), rng.uniform(6, 25)
-            b.box((x0 + x1) / 2, 0, 0.15, x1 - x0 - gap, sy, h, rng.uniform(0.3, 0.7))
-            for sign in (-1.0, 1.0):  # balconies on both long facades
-                _balconies(rng, b, (x0 + gap / 2, x1 - gap / 2), sign * (sy / 2 + 0.4), h, 0)
+    _block(rng, b, [(-bx, -8.0), (8.0, bx)] if cross else [(-bx, bx)], by)
     # Outer buildings, 16 m from the route's sides outward (with cross streets as gaps).
     for side in _sides(hx + 8, hy + 8):
         s = -side[2] - 16.0
@@ -158,6 +183,8 @@ def _urban(rng: np.random.Generator, b: MeshBuilder) -> Route:
         for d_out, spacing in ((-6.5, 14.0), (6.5, 15.0)):  # inner / outer sidewalk lines
             for s in _ring_positions(rng, straight, spacing):
                 x, y = _along(side, s, d_out)
+                if cross and d_out < 0 and abs(x) < 10.0:  # keep the cross street's mouth free
+                    continue
                 b.cylinder(x, y, 0.15, 0.12, rng.uniform(5, 8), 0.8)  # street light
                 kind = rng.integers(0, 4)
                 x2, y2 = _along(side, s + spacing / 2, d_out + np.sign(d_out) * 0.5)
@@ -172,6 +199,8 @@ def _urban(rng: np.random.Generator, b: MeshBuilder) -> Route:
             for s in _ring_positions(rng, straight - 3, 9.0):
                 if rng.random() < 0.45:
                     x, y = _along(side, s, d_car)
+                    if cross and d_car < 0 and abs(x) < 10.0:
+                        continue
                     sx, sy = (4.5, 1.8) if side[3] == 0 else (1.8, 4.5)
                     b.box(x, y, 0.0, sx, sy, rng.uniform(1.4, 1.9), rng.uniform(0.2, 0.9))
     return Route(hx, hy, 8.0, half_width_m=4.1 - 0.9 - 0.4, z_range_m=(0.0, 30.0))
@@ -275,15 +304,28 @@ def _open_field(rng: np.random.Generator, b: MeshBuilder) -> Route:
 BUILDERS = {"urban": _urban, "hall": _hall, "corridor": _corridor, "open-field": _open_field}
 
 
-def make_world(name: str, seed: int = 0, clearance_m: float = 0.4) -> World:
-    """Builds the named world from ``seed`` (same name and seed give the same mesh).
+def make_world(name: str, seed: int = 0, clearance_m: float = 0.4, path: str = "loop") -> World:
+    """Builds the named world from ``seed`` (same name, seed and path give the same mesh).
+
+    ``path`` (one of :data:`~l2calib.sim.world.ROUTE_PATHS`) is how the route is driven;
+    ``figure-8`` builds the urban world with a cross street (a different mesh).
 
     Raises:
-        ConfigError: if ``name`` is not one of :data:`WORLD_NAMES`.
+        ConfigError: if ``name`` is not one of :data:`WORLD_NAMES`, ``path`` not one of
+            ``ROUTE_PATHS``, or ``figure-8`` is asked of a world other than ``urban``.
     """
     if name not in BUILDERS:
         raise ConfigError(f"unknown world {name!r}", fix=f"choose one of: {', '.join(WORLD_NAMES)}")
+    if path not in ROUTE_PATHS:
+        raise ConfigError(
+            f"unknown route path {path!r}", fix=f"choose one of: {', '.join(ROUTE_PATHS)}"
+        )
+    if path == "figure-8" and name != "urban":
+        raise ConfigError(
+            f"the {name} world has no figure-8 route (only urban has a cross street)",
+            fix="use world.name=urban, or world.route=loop / loop-cw",
+        )
     rng = np.random.default_rng([seed, 17])
     builder = MeshBuilder()
-    route = BUILDERS[name](rng, builder)
-    return builder.build(name, seed, route, clearance_m)
+    route = _urban(rng, builder, cross=True) if path == "figure-8" else BUILDERS[name](rng, builder)
+    return builder.build(name, seed, dataclasses.replace(route, path=path), clearance_m)

@@ -22,6 +22,10 @@ from typing import Any
 import numpy as np
 
 WORLD_NAMES = ("urban", "hall", "corridor", "open-field")
+# How the rig drives its route: ``loop`` counter-clockwise (left turns only), ``loop-cw`` the same
+# loop clockwise (right turns only), ``figure-8`` (urban only: a cross street splits the central
+# block; one lap around each half, left turns then right turns).
+ROUTE_PATHS = ("loop", "loop-cw", "figure-8")
 
 
 @dataclass(frozen=True)
@@ -35,6 +39,8 @@ class Route:
         half_width_m: Free lateral distance either side of the centre line, clearance included
             (the rig origin plus its lever arm must stay within it).
         z_range_m: ``(min, max)`` free heights for any part of the rig (m).
+        path: One of :data:`ROUTE_PATHS`: the rounded rectangle counter-clockwise (``loop``) or
+            clockwise (``loop-cw``), or a ``figure-8`` through a cross street along ``x = 0``.
     """
 
     half_x_m: float
@@ -42,12 +48,22 @@ class Route:
     corner_radius_m: float
     half_width_m: float
     z_range_m: tuple[float, float]
+    path: str = "loop"
 
     def polyline(self, spacing_m: float = 0.25) -> np.ndarray:
-        """``[M, 2]`` points of the closed centre line, uniform in arc length, counter-clockwise.
+        """``[M, 2]`` points of the closed centre line, uniform in arc length.
 
-        Starts at the middle of the bottom (``y = -half_y``) side, heading +x.
+        ``loop`` starts at the middle of the bottom (``y = -half_y``) side heading +x and turns
+        left; ``loop-cw`` is the same line backwards (heading -x, right turns); ``figure-8``
+        starts at the origin heading +y, laps the left half counter-clockwise, then the right
+        half clockwise.
         """
+        if self.path == "figure-8":
+            return _figure8(self.half_x_m, self.half_y_m, self.corner_radius_m, spacing_m)
+        loop = self._loop(spacing_m)
+        return loop if self.path == "loop" else np.roll(loop[::-1], 1, axis=0)
+
+    def _loop(self, spacing_m: float) -> np.ndarray:
         r = self.corner_radius_m
         ax, ay = self.half_x_m - r, self.half_y_m - r
         # Piecewise: bottom, corner, right, corner, top, corner, left, corner (lengths).
@@ -76,6 +92,37 @@ class Route:
                 ang = a0 + f[m] / max(r, 1e-9)
                 out[m] = np.stack([cx + r * np.cos(ang), cy + r * np.sin(ang)], 1)
         return out
+
+
+def _figure8(hx: float, hy: float, r: float, spacing_m: float) -> np.ndarray:
+    """``[M, 2]`` figure-8 centre line (see :meth:`Route.polyline`), uniform in arc length.
+
+    Straights and 90° arcs of radius ``r`` traced as a turtle path (a piecewise line of this
+    kind has no library generator worth a dependency).
+    """
+    sx, sy = hx - 2 * r, hy - r  # straight lengths: half of the top/bottom side, middle half
+    moves: list[tuple[float, int]] = []  # (straight m, then a 90° turn: +1 left, -1 right)
+    for turn in (1, -1):
+        moves += [(sy, turn), (sx, turn), (2 * hy - 2 * r, turn), (sx, turn), (sy, 0)]
+    total = sum(m for m, _ in moves) + 8 * np.pi * r / 2
+    n = max(int(np.ceil(total / spacing_m)), 64)
+    out, s_want = [], np.arange(n) / n * total
+    pos, heading, s0 = np.zeros(2), np.pi / 2, 0.0
+    for length, turn in moves:
+        d = np.array([np.cos(heading), np.sin(heading)])
+        m = (s_want >= s0) & (s_want < s0 + length)
+        out.append(pos + np.outer(s_want[m] - s0, d))
+        pos, s0 = pos + length * d, s0 + length
+        if turn:
+            arc = np.pi * r / 2
+            centre = pos + turn * r * np.array([-d[1], d[0]])
+            m = (s_want >= s0) & (s_want < s0 + arc)
+            ang = heading - turn * np.pi / 2 + turn * (s_want[m] - s0) / r
+            out.append(centre + r * np.column_stack([np.cos(ang), np.sin(ang)]))
+            heading, s0 = heading + turn * np.pi / 2, s0 + arc
+            back = heading - turn * np.pi / 2
+            pos = centre + r * np.array([np.cos(back), np.sin(back)])
+    return np.concatenate(out)
 
 
 @dataclass(eq=False)
