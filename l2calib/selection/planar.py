@@ -35,6 +35,9 @@ MIN_RATE_RAD_S = 0.02
 TURN_RATE_RAD_S = 0.1
 #: Below this many turning samples the motion is not judged (too little rotation).
 MIN_TURNING_SAMPLES = 100
+#: From this :attr:`PlanarMotion.one_way_share` on, the turns count as all going one way (a
+#: loop): ``inspect`` and the one-drive LiDAR-only caveat then say so.
+ONE_WAY_SHARE = 0.9
 
 
 @dataclass(frozen=True)

@@ -141,6 +141,22 @@ def test_inspect_names_planar_motion_and_what_calibrate_does():
     assert share < 0.6 and issues == []
 
 
+def test_inspect_says_when_every_turn_goes_the_same_way():
+    from l2calib.data import Sequence
+    from l2calib.preflight_motion import _planar_issue
+
+    t = np.arange(0.0, 60.0, 0.005)
+    turns = np.where(np.sin(2 * np.pi * t / 15) > 0.5, 0.4, 0.0)  # a 0.4 rad/s turn every 15 s
+    for sign, one_way in ((np.sign(np.sin(2 * np.pi * t / 30)), False), (1.0, True)):
+        rate = np.c_[0 * t, 0 * t, sign * turns + 0.03 * np.sin(3 * t)]
+        imu = ImuSamples((t * 1e9).astype(np.int64), rate, np.tile([0.0, 0.0, 9.81], (len(t), 1)))
+        seq = Sequence("car", imu, _Stamps(imu.stamps_ns[::20]))
+        _, issues = _planar_issue(imu, seq, "/points + /imu")
+        said = [i for i in issues if "turns all go one way (100 %" in i.message]
+        assert len(issues) == 1 + one_way and len(said) == one_way  # a loop, not a figure-8
+    assert "turns both ways" in said[0].fix and "ct-lidar" in said[0].fix
+
+
 class _Stamps:
     def __init__(self, stamps_ns):
         self.stamps_ns = stamps_ns
