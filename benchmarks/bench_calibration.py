@@ -117,9 +117,10 @@ def cases(quick: bool) -> list[Case]:
             for ref in ("gt", "ct-lidar")
         ),  # fmt: skip
         # The same drives turning both ways (the issue's own report was a figure-8) or only right
-        # (loop-cw: the same streets as the loop driven backwards). The loop's left turns only are
-        # the LiDAR-only reference's worst case: its lateral bias follows the turn direction
-        # (experiments/reference_error.json, "clockwise" rows); these rows stand beside it.
+        # (loop-cw: the same streets as the loop driven backwards). One-way loops, either way
+        # round, are the LiDAR-only reference's worst case: its error in the turns follows their
+        # direction and is not averaged out (docs/backends.md, "Both ways"); these rows stand
+        # beside the loop's.
         *(
             Case(
                 f"ugv {path} {model} {ref}",
