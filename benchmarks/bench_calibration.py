@@ -511,10 +511,36 @@ def _before_start_biases(rows: list[dict[str, Any]]) -> str:
     return md
 
 
+#: ``ct-lidar``'s vehicle prior (``noise_rot_deg`` / ``noise_rate_rad_s``: ``auto``) landed then:
+#: before it the ground vehicles' LiDAR-only references used the general motion prior.
+VEHICLE_PRIOR = "2026-12-07 05:00"
+
+
+def _before_vehicle_prior(rows: list[dict[str, Any]]) -> str:
+    """A note naming the ground-vehicle LiDAR-only rows measured before the vehicle prior."""
+    old = sorted(
+        {
+            f"{r['case']} (seed {r['train_seed']})"
+            for r in rows
+            if r["case"].startswith("ugv")
+            and r.get("reference") == "ct-lidar"
+            and r.get("machine", {}).get("date", "") < VEHICLE_PRIOR
+        }
+    )
+    if not old:
+        return ""
+    return (
+        f"\nMeasured before `ct-lidar`'s vehicle prior ({VEHICLE_PRIOR}; their references used "
+        'the general motion prior, docs/references.md, "The vehicle prior"): '
+        + ", ".join(old)
+        + ".\n"
+    )
+
+
 def _render(results: dict[str, Any]) -> str:
     """The markdown of a results JSON: rows, the over-seeds summary, failed runs."""
     md = _markdown(results["rows"]) + _summary(results["rows"], results.get("failed", []))
-    md += _before_start_biases(results["rows"])
+    md += _before_start_biases(results["rows"]) + _before_vehicle_prior(results["rows"])
     if results.get("failed"):
         md += "\nFailed (no result):\n\n" + "".join(
             f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in results["failed"]

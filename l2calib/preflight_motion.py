@@ -178,8 +178,8 @@ def _planar_issue(samples, seq: Sequence, where: str) -> tuple[float | None, lis
                 f"the turns all go one way ({100 * motion.one_way_share:.0f} % of the turning, "
                 "a loop): a LiDAR-only reference's error in the turns is then not averaged out "
                 "and reaches the horizontal lever arm (simulated 16-beam drives with ct-lidar: "
-                "1.6-3.0 cm off along x or y on one-way loops, either way round, within 1.4 cm "
-                "on four figure-8 drives, which turn both ways and twice as much)",
+                "one-way loops up to 2.4 cm off along x or y, either way round, figure-8 drives, "
+                "which turn both ways and twice as much, within 1.4 cm)",
                 "with ct-lidar or kiss-icp as reference, record a drive that turns both ways (a "
                 "figure-8, or the loop both ways round) or calibrate several drives together; an "
                 "exact reference (gt-file, rtk) is not affected",

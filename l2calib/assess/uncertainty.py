@@ -277,9 +277,10 @@ def reference_caveats(
     the VLP-16 drive, +1.0 → −1.1 cm on the OS1-16 drive; docs/backends.md, "Not loop closure"),
     so the caveat then says so. On a figure-8 drive (the simulator's ``world.route=figure-8``,
     turning both ways and twice as much) the same LiDARs calibrated to within 1.4 cm along x
-    and y on four drives (one-way loops: 1.6–3.0 cm off, either way round; a full calibration on
-    the loop driven clockwise did not mirror the counter-clockwise one; docs/backends.md, "Both
-    ways").
+    and y on four drives (one-way loops: 1.6–3.0 cm off, either way round, with the general
+    motion prior; with ``ct-lidar``'s vehicle prior since 2026-12-07 three of four within 1.3 cm
+    and the OS1-16's counter-clockwise loop 2.3 cm off; docs/backends.md, "Both ways", and
+    docs/references.md, "The vehicle prior").
 
     Args:
         unc: The bounds; the caveat needs a held axis and a reference term (``reference95``).
@@ -298,7 +299,7 @@ def reference_caveats(
             "simulated loops driven the other way round, the reference moved the reward's "
             "lateral peak the other way, by 1-2 cm), so a drive that also turns the other way "
             "helps (simulated 16-beam figure-8 drives: x and y within 1.4 cm on four drives, "
-            "loops 1.6-3.0 cm off; the figure-8s also turn twice as much)"
+            "one-way loops up to 2.4 cm off; the figure-8s also turn twice as much)"
         )
     return [
         "one drive and a LiDAR-only reference: the horizontal lever arm rests on the drive's "

@@ -176,20 +176,30 @@ class CtLidarReference(LidarOdometryReference):
     name = NAME
 
     def __init__(self, options, sequences=None, progress: bool = False, **context) -> None:  # noqa: ANN001
-        """Resolves ``backward_pass: auto`` with ``context["planar_motion"]``.
+        """Resolves ``auto`` options with ``context["planar_motion"]``.
 
-        The pipeline's IMU check: on for planar, yaw-dominant motion; resolved here so that
-        the cache key holds what ran.
+        The pipeline's IMU check: on planar, yaw-dominant motion the backward pass and the
+        vehicle prior (:data:`~l2calib.references.options.VEHICLE_MOTION_NOISE`); resolved
+        here so that the cache key holds what ran (the general values key as before).
         """
         self.notes: list[str] = []
+        planar = bool(context.get("planar_motion", False))
         if options.backward_pass == "auto":
-            on = bool(context.get("planar_motion", False))
-            options = options.model_copy(update={"backward_pass": on})
-            if on:
+            options = options.model_copy(update={"backward_pass": planar})
+            if planar:
                 self.notes.append(
                     "planar, yaw-dominant motion and reference.options.backward_pass: auto: "
                     "ct-lidar also runs backwards in time and averages the two passes "
                     "(experimental; twice the reference's time)"
+                )
+        if "auto" in (options.noise_rot_deg, options.noise_rate_rad_s):
+            rot, rate = options.motion_noise(planar)
+            options = options.model_copy(update={"noise_rot_deg": rot, "noise_rate_rad_s": rate})
+            if planar:
+                self.notes.append(
+                    f"planar, yaw-dominant motion: ct-lidar's vehicle prior (attitude noise "
+                    f"{rot:g} deg/sqrt(s), body rate {rate:g} rad/s/sqrt(s); "
+                    "reference.options.noise_rot_deg / noise_rate_rad_s)"
                 )
         super().__init__(options, sequences, progress, **context)
 

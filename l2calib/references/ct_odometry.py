@@ -80,11 +80,14 @@ class CtLidarOdometry(TrackingChecks):
         self.o = o
         self.map = self._new_map()
         self.rng = np.random.default_rng(o.seed)
+        # ``auto`` left unresolved (the odometry used on its own, not through the reference
+        # source, which resolves it with the IMU's planar check): the general values.
+        noise_rot_deg, noise_rate_rad_s = o.motion_noise(planar=False)
         q = np.repeat(
             [
-                np.radians(o.noise_rot_deg),
+                np.radians(noise_rot_deg),
                 o.noise_pos_m,
-                o.noise_rate_rad_s,
+                noise_rate_rad_s,
                 o.noise_alpha_rad_s2,
                 o.noise_velocity_m_s,
                 o.noise_accel_m_s2,

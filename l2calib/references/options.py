@@ -6,7 +6,7 @@ with their defaults; unknown keys are errors.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 from pydantic import Field, field_validator, model_validator
 
@@ -92,6 +92,19 @@ class KissIcpReferenceOptions(KissIcpOptions, CacheOptions):
     )
 
 
+#: ``ct-lidar``'s process noise of the attitude (deg/√s) and of the body rate (rad/s/√s) where
+#: ``auto``: in general (hand-held, UAV) and on planar, yaw-dominant motion (a ground vehicle).
+#: With the general values the attitude may step 0.16° from scan to scan whatever the body
+#: rate says, so the body rate is fixed only by each scan's own distortion, which a 16-beam
+#: scan shows weakly: on a simulated 16-beam drive it wandered by 3-24 deg/s in roll and pitch
+#: (truly ~0), and the forward pass tilted 1.6° by the last turn. The vehicle prior ties each
+#: scan's attitude to the previous scan's rate and lets the rate change slowly, as a
+#: vehicle's does: tilt within 0.23° over the 47 s, as with the true in-scan motion (0.22°).
+#: Measured in docs/references.md ("The vehicle prior").
+GENERAL_MOTION_NOISE = (0.5, 1.0)
+VEHICLE_MOTION_NOISE = (0.05, 0.1)
+
+
 class CtLidarOptions(CacheOptions):
     """``reference: {name: ct-lidar, options: ...}``: continuous-time LiDAR-only odometry.
 
@@ -163,9 +176,18 @@ class CtLidarOptions(CacheOptions):
     iterations: int = Field(6, ge=1, description="association rounds per scan")
     inner_steps: int = Field(2, ge=1, description="Levenberg-Marquardt steps per round")
     min_planes: int = Field(30, ge=18, description="fewest planes to solve a scan")
-    noise_rot_deg: float = Field(0.5, gt=0, description="process noise of the attitude (deg/√s)")
+    noise_rot_deg: Annotated[float, Field(gt=0)] | Literal["auto"] = Field(
+        "auto",
+        description="process noise of the attitude at each scan's start (deg/√s); auto: "
+        f"{GENERAL_MOTION_NOISE[0]}, or {VEHICLE_MOTION_NOISE[0]} on planar, yaw-dominant "
+        "motion (a ground vehicle: the 'vehicle prior', docs/references.md)",
+    )
     noise_pos_m: float = Field(0.01, gt=0, description="... of the position (m/√s)")
-    noise_rate_rad_s: float = Field(1.0, gt=0, description="... of the body rate (rad/s/√s)")
+    noise_rate_rad_s: Annotated[float, Field(gt=0)] | Literal["auto"] = Field(
+        "auto",
+        description=f"... of the body rate (rad/s/√s); auto: {GENERAL_MOTION_NOISE[1]}, or "
+        f"{VEHICLE_MOTION_NOISE[1]} on planar, yaw-dominant motion (the vehicle prior)",
+    )
     noise_alpha_rad_s2: float = Field(
         8.0,
         gt=0,
@@ -296,6 +318,17 @@ class CtLidarOptions(CacheOptions):
         description="... which starts this many seconds of scans after the segment (or run), "
         "cold and usually while moving: its first seconds are its worst (s)",
     )
+
+    def motion_noise(self, planar: bool = False) -> tuple[float, float]:
+        """The attitude's (deg/√s) and body rate's (rad/s/√s) process noise, ``auto`` resolved.
+
+        Args:
+            planar: The IMU says planar, yaw-dominant motion (a ground vehicle).
+        """
+        auto = VEHICLE_MOTION_NOISE if planar else GENERAL_MOTION_NOISE
+        rot = auto[0] if self.noise_rot_deg == "auto" else self.noise_rot_deg
+        rate = auto[1] if self.noise_rate_rad_s == "auto" else self.noise_rate_rad_s
+        return float(rot), float(rate)
 
     @model_validator(mode="after")
     def _ranges(self) -> CtLidarOptions:

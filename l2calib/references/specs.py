@@ -8,7 +8,8 @@ Factories take the pipeline's context as keyword arguments and ignore what they 
 * ``fixes`` — NavSatFix arrays in memory by sequence name (``rtk``, for data without a bag);
 * ``progress`` — show progress bars;
 * ``planar_motion`` — the IMU says planar, yaw-dominant motion (a ground vehicle): ``ct-lidar``
-  adds its backward pass (``backward_pass: auto``, the default).
+  adds its backward pass (``backward_pass: auto``, the default) and its vehicle prior
+  (``noise_rot_deg`` / ``noise_rate_rad_s``: ``auto``).
 
 Example:
     >>> spec = get_plugin("l2calib.references", recipe.reference.name)  # doctest: +SKIP

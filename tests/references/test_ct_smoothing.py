@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from scipy.spatial.transform import Rotation
 
 from l2calib.alignment import ape
@@ -88,7 +89,9 @@ def test_auto_runs_the_backward_pass_on_a_drive_only_and_it_tracks(drive, tmp_pa
     assert off.options.backward_pass is False and not off.notes
     ref = on.compute([drive.segment])[0]
     both = ref.trajectory
-    alone = off.compute([drive.segment])[0]
+    # the forward pass alone, with the vehicle prior a planar drive also gets (auto)
+    alone = spec.build({**auto, "backward_pass": False}, planar_motion=True)
+    alone = alone.compute([drive.segment])[0]
     fwd = alone.trajectory
     np.testing.assert_array_equal(both.stamps_ns, fwd.stamps_ns)
     assert not np.allclose(both.t_world_body, fwd.t_world_body)
@@ -154,3 +157,36 @@ def test_a_segment_cut_from_a_run_with_both_passes_carries_the_forward_pass(driv
     cached = spec.build({"cache_dir": str(tmp_path), "backward_pass": True}, sequences=seqs)
     again = cached.compute([drive.segment])[0]
     np.testing.assert_array_equal(again.alternative.t_world_body, ref.alternative.t_world_body)
+
+
+def test_the_vehicle_prior_is_resolved_by_the_planar_check_and_keys_the_cache(tmp_path):
+    from l2calib.references.ct_odometry import CtLidarOdometry
+    from l2calib.references.options import (
+        GENERAL_MOTION_NOISE,
+        VEHICLE_MOTION_NOISE,
+        CtLidarOptions,
+    )
+
+    spec = get_plugin("l2calib.references", "ct-lidar")
+    base = {"cache_dir": str(tmp_path)}
+    general = spec.build(base)
+    vehicle = spec.build(base, planar_motion=True)
+    given = spec.build({**base, "noise_rot_deg": 0.3, "noise_rate_rad_s": 2.0}, planar_motion=True)
+    pick = ("noise_rot_deg", "noise_rate_rad_s")
+    assert tuple(general.key_options()[k] for k in pick) == GENERAL_MOTION_NOISE
+    assert tuple(vehicle.key_options()[k] for k in pick) == VEHICLE_MOTION_NOISE
+    assert tuple(given.key_options()[k] for k in pick) == (0.3, 2.0)  # given numbers win
+    assert any("vehicle prior" in n for n in vehicle.notes)
+    assert not any("vehicle prior" in n for n in general.notes + given.notes)
+    # a general key is the options' dump with the numbers the option had before ``auto``:
+    # references cached before it keep their keys
+    before = CtLidarOptions(noise_rot_deg=0.5, noise_rate_rad_s=1.0, backward_pass=False)
+    dropped = {"cache", "cache_dir", "backward_pass"}
+    assert general.key_options() == before.model_dump(exclude=dropped)
+    # the odometry on its own (not through the source) takes the general numbers
+    q = CtLidarOdometry(CtLidarOptions()).q_density
+    np.testing.assert_allclose(q[[0, 6]], [np.radians(0.5) ** 2, 1.0])
+    q = CtLidarOdometry(vehicle.options).q_density
+    np.testing.assert_allclose(q[[0, 6]], [np.radians(0.05) ** 2, 0.1**2])
+    with pytest.raises(ValueError, match="noise_rot_deg"):
+        CtLidarOptions(noise_rot_deg=-1.0)
