@@ -137,6 +137,12 @@ class TrainConfig(StrictModel):
     handover_translation_sigma_m: float = Field(
         0.20, gt=0, description="translation σ (m) for handover_rotation_sigma_deg"
     )
+    handover_time_offset_sigma_s: float | None = Field(
+        None,
+        gt=0,
+        description="... and, where the time offset is estimated, its σ at most this (s); "
+        "null: not checked (the policy then hands over with the offset as wide as it started)",
+    )
     coarse_to_fine: bool = Field(
         True,
         description="score wide policies on a part of the data, all of it once narrow "

@@ -304,8 +304,8 @@ def reference_caveats(
     return [
         "one drive and a LiDAR-only reference: the horizontal lever arm rests on the drive's "
         "few turns and on the reference's drift over them, and the part of that drift both of "
-        "the reference's passes share is not in these bounds (simulated 16-beam drives: lateral "
-        "errors 1.9-2.4 cm against bounds of 1.5-1.6 cm; 32-beam drives and three drives "
+        "the reference's passes share is not in these bounds (simulated 16-beam loops: lateral "
+        "errors up to 2.4 cm against bounds of 1.2-1.6 cm; 32-beam drives and three 60 s drives "
         "together stayed inside); calibrate two or three drives together, or use an exact "
         f"reference (gt-file, rtk){one_way}"
     ]

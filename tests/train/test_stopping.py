@@ -67,6 +67,24 @@ def test_a_narrow_policy_hands_over_to_the_refinement():
     assert _narrow_enough([narrow], TrainConfig(handover_rotation_sigma_deg=None)) is None
 
 
+def test_the_hand_over_can_wait_for_the_time_offset():
+    """Born narrow in rotation and translation, the policy still samples its start's 20 ms of
+    time offset; with ``handover_time_offset_sigma_s`` it hands over only once that is narrow."""
+    from l2calib.train.ppo import _narrow_enough
+
+    gated = TrainConfig(handover_time_offset_sigma_s=0.005)
+    wide = _record(0, 0.9)  # rotation σ 1°, translation σ 5 cm: narrow
+    wide.time_offset_sigma_s = 0.02
+    assert _narrow_enough([wide], TrainConfig()) is not None  # the offset is not checked
+    assert _narrow_enough([wide], gated) is None
+    narrow = _record(1, 0.9)
+    narrow.time_offset_sigma_s = 0.004
+    reason = _narrow_enough([wide, narrow], gated)
+    assert reason is not None and reason.endswith("/ 5 ms)") and "after 2 iterations" in reason
+    unestimated = _record(0, 0.9)  # time offset not estimated (σ None): the gate does not apply
+    assert _narrow_enough([unestimated], gated) is not None
+
+
 def test_a_signal_inside_a_held_block_is_raised_as_the_block_ends():
     """The PPO update runs inside ``held()``: a Ctrl-C there must surface as ``Interrupted``
     after the update, not as whatever a library turns it into mid-way."""
