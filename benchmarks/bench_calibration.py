@@ -472,20 +472,28 @@ START_BIASES_FAST = "2026-12-04 17:05"
 END_OF_IMU_FIX = "2026-12-04 18:55"
 
 
-def _before_start_biases(rows: list[dict[str, Any]]) -> str:
-    """A note naming the hand-held rows measured before the current start-bias code."""
-
-    def named(lo: str, hi: str) -> str:
-        return ", ".join(
-            sorted(
+def _dated(
+    rows: list[dict[str, Any]], prefix: str, lo: str, hi: str, reference: str | None = None
+) -> str:
+    """``case (seed n)`` of the rows whose case starts with ``prefix``, measured in ``[lo, hi)``
+    (the machine's date), and with ``reference`` as reference if given; comma-separated."""
+    return ", ".join(
+        sorted(
+            {
                 f"{r['case']} (seed {r['train_seed']})"
                 for r in rows
-                if r["case"].startswith("handheld")
+                if r["case"].startswith(prefix)
                 and lo <= r.get("machine", {}).get("date", "") < hi
-            )
+                and (reference is None or r.get("reference") == reference)
+            }
         )
+    )
 
-    zero, earlier = named("", START_BIASES_AUTO), named(START_BIASES_AUTO, START_BIASES_FAST)
+
+def _before_start_biases(rows: list[dict[str, Any]]) -> str:
+    """A note naming the hand-held rows measured before the current start-bias code."""
+    zero = _dated(rows, "handheld", "", START_BIASES_AUTO)
+    earlier = _dated(rows, "handheld", START_BIASES_AUTO, START_BIASES_FAST)
     before_fix = sum(r.get("machine", {}).get("date", "") < END_OF_IMU_FIX for r in rows)
     md = ""
     if before_fix:
@@ -518,22 +526,12 @@ VEHICLE_PRIOR = "2026-12-07 05:00"
 
 def _before_vehicle_prior(rows: list[dict[str, Any]]) -> str:
     """A note naming the ground-vehicle LiDAR-only rows measured before the vehicle prior."""
-    old = sorted(
-        {
-            f"{r['case']} (seed {r['train_seed']})"
-            for r in rows
-            if r["case"].startswith("ugv")
-            and r.get("reference") == "ct-lidar"
-            and r.get("machine", {}).get("date", "") < VEHICLE_PRIOR
-        }
-    )
+    old = _dated(rows, "ugv", "", VEHICLE_PRIOR, reference="ct-lidar")
     if not old:
         return ""
     return (
         f"\nMeasured before `ct-lidar`'s vehicle prior ({VEHICLE_PRIOR}; their references used "
-        'the general motion prior, docs/references.md, "The vehicle prior"): '
-        + ", ".join(old)
-        + ".\n"
+        f'the general motion prior, docs/references.md, "The vehicle prior"): {old}.\n'
     )
 
 
