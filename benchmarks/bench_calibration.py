@@ -535,10 +535,35 @@ def _before_vehicle_prior(rows: list[dict[str, Any]]) -> str:
     )
 
 
+def _before_offset_handover(rows: list[dict[str, Any]]) -> str:
+    """A note naming the ground-vehicle rows whose PPO handed over on rotation and translation
+    alone, the time offset estimated (before ``PLANAR_RATE_START``'s
+    ``train.handover_time_offset_sigma_s``, session 44)."""
+    old = sorted(
+        {
+            f"{r['case']} (seed {r['train_seed']})"
+            for r in rows
+            if r["case"].startswith("ugv")
+            and str(r.get("stop", "")).startswith("narrow enough")
+            and not str(r.get("stop", "")).endswith("ms)")
+            and str(r.get("time_offset_method", "")).startswith("estimated jointly")
+        }
+    )
+    if not old:
+        return ""
+    return (
+        "\nMeasured before ground vehicles' hand-over also waited for the time offset's spread "
+        "(PPO handed over on rotation and translation alone; `PLANAR_RATE_START` in "
+        'l2calib/train/vertical_hold.py, docs/backends.md, "The hand-over and the time offset"): '
+        f"{', '.join(old)}.\n"
+    )
+
+
 def _render(results: dict[str, Any]) -> str:
     """The markdown of a results JSON: rows, the over-seeds summary, failed runs."""
     md = _markdown(results["rows"]) + _summary(results["rows"], results.get("failed", []))
     md += _before_start_biases(results["rows"]) + _before_vehicle_prior(results["rows"])
+    md += _before_offset_handover(results["rows"])
     if results.get("failed"):
         md += "\nFailed (no result):\n\n" + "".join(
             f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in results["failed"]

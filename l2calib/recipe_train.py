@@ -141,7 +141,9 @@ class TrainConfig(StrictModel):
         None,
         gt=0,
         description="... and, where the time offset is estimated, its σ at most this (s); "
-        "null: not checked (the policy then hands over with the offset as wide as it started)",
+        "null: not checked (the policy then hands over with the offset as wide as it started); "
+        "ground vehicles started at the rate rotation take 0.01 unless set "
+        "(l2calib.train.vertical_hold.PLANAR_RATE_START)",
     )
     coarse_to_fine: bool = Field(
         True,

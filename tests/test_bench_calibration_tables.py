@@ -1,6 +1,6 @@
-"""The calibration benchmark's markdown: unresolved-axis labels and the over-seeds summary."""
+"""The calibration benchmark's markdown: unresolved-axis labels, the over-seeds summary, notes."""
 
-from benchmarks.bench_calibration import _runs, _summary, unresolved
+from benchmarks.bench_calibration import _before_offset_handover, _runs, _summary, unresolved
 
 
 def _row(case: str, seed: int, t_cm: float, r_deg: float, undetermined=()) -> dict:
@@ -49,3 +49,21 @@ def test_restarted_runs_are_marked():
     assert _runs(row) == "" and _runs({**row, "attempts": None}) == ""
     two = [{"seed": 0, "kept": False}, {"seed": 10007, "kept": True}]
     assert _runs({**row, "attempts": two}) == " (2 runs)"
+
+
+def test_ground_vehicle_rows_handed_over_without_the_offset_are_named():
+    joint = "estimated jointly with the extrinsic, from the rotation-rate correlation"
+    old = "narrow enough for the refinement after 1 iterations (sigma <= 2.5 deg / 20 cm)"
+    new = "narrow enough for the refinement after 9 iterations (sigma <= 2.5 deg / 20 cm / 10 ms)"
+    rows = [
+        {**_row("ugv all ct-lidar", 0, 1.0, 0.1), "stop": old, "time_offset_method": joint},
+        {**_row("ugv all ct-lidar", 1, 1.0, 0.1), "stop": new, "time_offset_method": joint},
+        {**_row("ugv seq 1", 0, 1.0, 0.1), "stop": "budget", "time_offset_method": joint},
+        {**_row("ugv held", 0, 1.0, 0.1), "stop": old, "time_offset_method": "known: held"},
+        {**_row("handheld", 0, 1.0, 0.1), "stop": old, "time_offset_method": joint},
+    ]
+    note = _before_offset_handover(rows)
+    assert "ugv all ct-lidar (seed 0)" in note
+    for other in ("(seed 1)", "ugv seq 1", "ugv held", "handheld"):
+        assert other not in note
+    assert _before_offset_handover(rows[1:]) == ""

@@ -113,11 +113,12 @@ def _narrow_enough(history: list[IterationRecord], cfg: TrainConfig) -> str | No
     estimated and ``handover_time_offset_sigma_s`` is set, its σ is at most that too.
 
     Started at the rate rotation and the lever-arm start, the policy is born narrower than
-    the first two gates and hands over after one iteration, its time offset's σ still above
-    5 ms (it starts at 20 ms; gated at 5 ms, PPO took 20-27 iterations to get there): on 20 s
-    of three simulated ground-vehicle drives (LiDAR-only) the refinement then climbed a ridge
-    of time offset, yaw and lateral lever arm to -5.5 ms, 0.64 deg and 5.9 cm, below the
-    truth's reward (docs/backends.md, "The hand-over and the time offset").
+    the first two gates and hands over after one iteration, its time offset's σ still near
+    the start's 20 ms: on 20 s of three simulated ground-vehicle drives (LiDAR-only) the
+    refinement then climbed a ridge of time offset, yaw and lateral lever arm to -5.5 ms,
+    0.64 deg and 5.9 cm, below the truth's reward. Ground vehicles therefore gate at 10 ms
+    (:data:`l2calib.train.vertical_hold.PLANAR_RATE_START`; PPO took 8-14 iterations to get
+    there; docs/backends.md, "The hand-over and the time offset").
     """
     if cfg.handover_rotation_sigma_deg is None or not history:
         return None

@@ -149,17 +149,35 @@ PLANAR_UNIFORM_START: dict[str, Any] = {
 }
 
 
+#: Started at the rate rotation, the policy is born narrower than the hand-over's 2.5 deg / 20 cm
+#: and handed over after one PPO iteration with its time offset's σ still at the start's 20 ms:
+#: on 20 s of three drives from the LiDAR alone ("ugv all ct-lidar") the refinement then climbed a
+#: ridge of offset, yaw and lateral lever arm (training seed 2: -5.5 ms, 0.64 deg, 5.9 cm). Waiting
+#: for the offset's σ <= 10 ms (half the start; five times the refinement's first offset step)
+#: PPO ran 8-14 iterations and seeds 0-2 came out at x / y 0.88 / 0.83, 1.01 / 2.05,
+#: 1.01 / 2.03 cm, 0.09-0.12 deg, 1,404-1,596 evaluations against 1,180
+#: (``benchmarks/results/experiments/handover_time_offset.json``, docs/backends.md).
+PLANAR_RATE_START: dict[str, Any] = {
+    "handover_time_offset_sigma_s": 0.01,
+}
+
+
 def planar_train_settings(train: Any, rate_start: bool = False) -> tuple[Any, dict[str, Any]]:
     """``train`` with the planar settings where the recipe left them at their defaults.
 
     Args:
         train: The recipe's ``train``.
         rate_start: PPO's rotation starts at the rate rotation (else uniform, or at a prior):
-            only :data:`PLANAR_TRAIN`; otherwise :data:`PLANAR_UNIFORM_START` too.
+            :data:`PLANAR_TRAIN` and :data:`PLANAR_RATE_START`; otherwise
+            :data:`PLANAR_UNIFORM_START` (no hand-over) and :data:`PLANAR_TRAIN`.
 
     Returns:
         The settings to train with, and what was changed (empty when the recipe set them all).
     """
-    wanted = PLANAR_TRAIN if rate_start else {**PLANAR_UNIFORM_START, **PLANAR_TRAIN}
+    wanted = (
+        {**PLANAR_TRAIN, **PLANAR_RATE_START}
+        if rate_start
+        else {**PLANAR_UNIFORM_START, **PLANAR_TRAIN}
+    )
     changed = {k: v for k, v in wanted.items() if k not in train.model_fields_set}
     return train.model_copy(update=changed), changed

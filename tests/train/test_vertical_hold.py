@@ -188,9 +188,12 @@ def test_a_run_started_at_the_rate_rotation_keeps_the_hand_over_on_planar_data()
     cfg, changed = planar_train_settings(default, rate_start=True)
     assert cfg.handover_rotation_sigma_deg == default.handover_rotation_sigma_deg is not None
     assert cfg.refine_rounds == default.refine_rounds
-    assert set(changed) == {"polish_rounds", "polish_first_scale"}
+    assert cfg.handover_time_offset_sigma_s == 0.01  # the hand-over waits for the offset too
+    assert set(changed) == {"polish_rounds", "polish_first_scale", "handover_time_offset_sigma_s"}
     mine = TrainConfig.model_validate({"handover_rotation_sigma_deg": None})
     assert planar_train_settings(mine, rate_start=True)[0].handover_rotation_sigma_deg is None
+    mine = TrainConfig.model_validate({"handover_time_offset_sigma_s": None})  # "off", kept
+    assert planar_train_settings(mine, rate_start=True)[0].handover_time_offset_sigma_s is None
 
 
 @pytest.mark.parametrize("text, expected", [("off", "off"), ("on", "on"), ("auto", "auto")])
