@@ -472,21 +472,23 @@ START_BIASES_FAST = "2026-12-04 17:05"
 END_OF_IMU_FIX = "2026-12-04 18:55"
 
 
+def _names(rows: list[dict[str, Any]], keep: Callable[[dict[str, Any]], bool]) -> str:
+    """``case (seed n)`` of the rows ``keep`` accepts, sorted and comma-separated."""
+    return ", ".join(sorted({f"{r['case']} (seed {r['train_seed']})" for r in rows if keep(r)}))
+
+
 def _dated(
     rows: list[dict[str, Any]], prefix: str, lo: str, hi: str, reference: str | None = None
 ) -> str:
     """``case (seed n)`` of the rows whose case starts with ``prefix``, measured in ``[lo, hi)``
     (the machine's date), and with ``reference`` as reference if given; comma-separated."""
-    return ", ".join(
-        sorted(
-            {
-                f"{r['case']} (seed {r['train_seed']})"
-                for r in rows
-                if r["case"].startswith(prefix)
-                and lo <= r.get("machine", {}).get("date", "") < hi
-                and (reference is None or r.get("reference") == reference)
-            }
-        )
+    return _names(
+        rows,
+        lambda r: (
+            r["case"].startswith(prefix)
+            and lo <= r.get("machine", {}).get("date", "") < hi
+            and (reference is None or r.get("reference") == reference)
+        ),
     )
 
 
@@ -539,15 +541,14 @@ def _before_offset_handover(rows: list[dict[str, Any]]) -> str:
     """A note naming the ground-vehicle rows whose PPO handed over on rotation and translation
     alone, the time offset estimated (before ``PLANAR_RATE_START``'s
     ``train.handover_time_offset_sigma_s``, session 44)."""
-    old = sorted(
-        {
-            f"{r['case']} (seed {r['train_seed']})"
-            for r in rows
-            if r["case"].startswith("ugv")
+    old = _names(
+        rows,
+        lambda r: (
+            r["case"].startswith("ugv")
             and str(r.get("stop", "")).startswith("narrow enough")
             and not str(r.get("stop", "")).endswith("ms)")
             and str(r.get("time_offset_method", "")).startswith("estimated jointly")
-        }
+        ),
     )
     if not old:
         return ""
@@ -555,7 +556,7 @@ def _before_offset_handover(rows: list[dict[str, Any]]) -> str:
         "\nMeasured before ground vehicles' hand-over also waited for the time offset's spread "
         "(PPO handed over on rotation and translation alone; `PLANAR_RATE_START` in "
         'l2calib/train/vertical_hold.py, docs/backends.md, "The hand-over and the time offset"): '
-        f"{', '.join(old)}.\n"
+        f"{old}.\n"
     )
 
 
