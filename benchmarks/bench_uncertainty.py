@@ -7,7 +7,8 @@ For each row of ``benchmarks/results/calibration.json`` (every case and training
 stored ``T_imu_lidar``, simulator version as today's), the case's data is rebuilt as the
 calibration saw it — the same simulated sequences, selection, reference (the exact LiDAR
 trajectory, ``ct-lidar`` or ``kiss-icp``), time-offset hold and vertical lever-arm hold — and
-the pipeline's own uncertainty stage (:func:`l2calib.training.estimate_axis_uncertainty`, then
+the pipeline's own uncertainty stage
+(:func:`l2calib.assess.result_bounds.estimate_axis_uncertainty`, then
 :func:`l2calib.assess.uncertainty.undetermined` with the recipe's limits) runs at the stored
 result. That is what ``calibrate`` would have reported after that training. Per axis (rotation
 about / translation along the LiDAR axes, the time offset where estimated) the true error
@@ -68,7 +69,7 @@ def assess_row(env, runs, recipe, hold, row: dict[str, Any]) -> dict[str, Any]:
     """The uncertainty stage at one stored result, beside its true per-axis error."""
     from l2calib import geometry as geo
     from l2calib.assess import uncertainty
-    from l2calib.training import estimate_axis_uncertainty
+    from l2calib.assess.result_bounds import estimate_axis_uncertainty
 
     T = torch.tensor(row["T_imu_lidar"], dtype=torch.float64)
     estimated = recipe.train.estimate_time_offset and row.get("time_offset_s") is not None

@@ -4,7 +4,8 @@
 the result disagrees with the reference, :mod:`l2calib.assess.agreement`), refines the policy's
 mode on the reward (:mod:`l2calib.assess.refine`), probes the reward around it (per-axis
 resolution, :mod:`l2calib.assess.sensitivity`; the time offset's,
-:mod:`l2calib.assess.time_offset_probe`) and returns the
+:mod:`l2calib.assess.time_offset_probe`), bounds each axis
+(:mod:`l2calib.assess.result_bounds`) and returns the
 :class:`~l2calib.assess.result.CalibrationResult`. The data comes from
 :mod:`l2calib.pipeline`.
 """
@@ -29,89 +30,9 @@ from l2calib.interrupt import Interrupted, stop_workers
 from l2calib.pipeline import PreparedData
 from l2calib.recipe import Recipe
 from l2calib.train.env_build import set_data_fraction
+from l2calib.train.offset_hold import offset_from_rates, offset_start_s
 
 log = logging.getLogger("l2calib")
-
-
-def offset_start_s(train: Any, hint_s: float | None) -> float | None:
-    """The time offset's starting mean (s), ``None`` when it is not estimated (or from 0).
-
-    The recipe's ``train.init_time_offset_s`` (the user's, e.g. from ``inspect``) wins over the
-    reference's clock-check hint ``hint_s``.
-    """
-    if not train.estimate_time_offset:
-        return None
-    start = hint_s if train.init_time_offset_s is None else train.init_time_offset_s
-    return None if start is None else float(start)  # numpy scalars would not reach the YAML
-
-
-def undetermined_axes(
-    resolution: Any,
-    selection: Any | None,
-    axis_uncertainty: Any | None = None,
-    limits: Any | None = None,
-    rot_limit_deg: float = 1.0,
-    trans_limit_m: float = 0.05,
-) -> list[str]:
-    """Axes the data could not determine.
-
-    With the per-axis uncertainty (:mod:`l2calib.assess.uncertainty`): axes whose 95 % bound
-    exceeds ``limits`` (``train.uncertainty``) or along which the reward is flat, and axes where
-    the resolution probe found a better extrinsic nearby. Without it (``train.uncertainty.
-    enabled: false``): the resolution probe's flat or wide axes and the selection's weakly
-    excited ones, as before.
-    """
-    from l2calib.assess import sensitivity, uncertainty
-
-    if axis_uncertainty is None:
-        out = sensitivity.undetermined(resolution, rot_limit_deg, trans_limit_m)
-        if selection is not None:
-            out += [f"weakly excited: {w}" for w in selection.weak_axes]
-        return out
-    out = uncertainty.undetermined(
-        axis_uncertainty, limits.rotation_limit_deg, limits.translation_limit_m,
-        limits.time_offset_limit_ms / 1000,
-    )  # fmt: skip
-    better = [f"{b}: a nearby extrinsic scores higher (not converged)" for b in resolution.better]
-    return out + better
-
-
-def estimate_axis_uncertainty(env, T_imu_lidar, estimated_offset_s, hold, config):
-    """Per-axis 95 % bounds at the result (:mod:`l2calib.assess.uncertainty`) on the open env.
-
-    Args:
-        env: The open training env (or any scoring env of the same data).
-        T_imu_lidar: ``[4, 4]`` the calibrated extrinsic.
-        estimated_offset_s: The estimated time offset (s), a seventh axis; ``None`` when it was
-            not estimated (a held or known offset is the env's own).
-        hold: The vertical lever-arm hold, or ``None``.
-        config: ``train.uncertainty`` (block length and the limits recorded with the bounds).
-
-    Returns:
-        The :class:`~l2calib.assess.uncertainty.AxisUncertainty` (``evaluations``: odometry
-        runs it took).
-    """
-    from l2calib.assess import uncertainty
-    from l2calib.train.env_build import block_costs
-
-    T, offsets = uncertainty.candidates(T_imu_lidar, estimated_offset_s)
-    costs = block_costs(env, T, offsets, config.block_s)
-    held_axis = None
-    if hold is not None:  # the LiDAR axis nearest the held (vertical) direction
-        up_lidar = np.asarray(T_imu_lidar, dtype=np.float64)[:3, :3].T @ np.asarray(hold.axis_imu)
-        held_axis = 3 + int(np.argmax(np.abs(up_lidar)))
-    tau = uncertainty.correlation_time(costs.centre)  # the stencil's first candidate: the result
-    out = uncertainty.estimate(
-        costs.costs, costs.scans, held_axis=held_axis, tau=tau,
-        alternative_costs=costs.alternative,
-    )  # fmt: skip
-    out.evaluations = int(T.shape[0])
-    out.limits = (
-        config.rotation_limit_deg,
-        config.translation_limit_m,
-        config.time_offset_limit_ms / 1000,
-    )
-    return out
 
 
 class _Scorer:
@@ -197,7 +118,6 @@ def train_policy(
             "resume needs the output directory of the run to continue", fix="pass its out_dir"
         )
     from l2calib.train.lever_start import lever_start
-    from l2calib.train.offset_hold import offset_from_rates
     from l2calib.train.rotation_start import rotation_start, start_offset_s
 
     say = stage or (lambda _msg: None)
@@ -386,8 +306,9 @@ def _attempt(
     ``start`` the rotation start from the rates (:mod:`l2calib.train.rotation_start`) or None,
     ``t_start`` the translation start from the accelerations (:mod:`l2calib.train.lever_start`).
     """
-    from l2calib.assess import sensitivity, uncertainty
+    from l2calib.assess import sensitivity
     from l2calib.assess.refine import refine
+    from l2calib.assess.result_bounds import bounds_at_result, undetermined_axes
     from l2calib.assess.time_offset_probe import probe_evaluations, probe_time_offset
     from l2calib.plugins import get_plugin
     from l2calib.train.checkpoint import CHECKPOINT_NAME, recipe_fingerprint
@@ -476,10 +397,9 @@ def _attempt(
     axis_unc = None
     if cfg.uncertainty.enabled:
         say("estimating each axis's uncertainty from the data (95 % bounds)")
-        axis_unc = estimate_axis_uncertainty(env, T_mode, best.time_offset_s, hold, cfg.uncertainty)
-        drives = len({seg.sequence for seg in data.segments})
-        one_way = None if hold is None else hold.motion.one_way_share
-        axis_unc.caveats = uncertainty.reference_caveats(axis_unc, drives, one_way)
+        axis_unc = bounds_at_result(
+            env, T_mode, best.time_offset_s, hold, cfg.uncertainty, data.segments
+        )
     stage_s["probe"] = time.monotonic() - clock
     unc = policy.uncertainty() if hold is None else hold.policy_spread(policy.uncertainty())
     sources = sorted({r.source for r in data.references})
@@ -515,8 +435,8 @@ def _attempt(
         extra={
             # which reference the reward compared with, and why (e.g. the recipe's fallback)
             "reference": {"sources": sources, "notes": list(data.notes)},
-            **({"refine": _refine_summary(refined)} if refined else {}),
-            **({"polish": _polish_summary(polished)} if polished else {}),
+            **({"refine": refined.summary()} if refined else {}),
+            **({"polish": polished.summary()} if polished else {}),
             **(
                 {"vertical_hold": {**hold.to_dict(), "train_settings": planar_changed}}
                 if hold is not None
@@ -529,29 +449,3 @@ def _attempt(
 def _held(hold: Any | None, T_imu_lidar: torch.Tensor) -> torch.Tensor:
     """``T_imu_lidar`` with the held vertical translation (unchanged without a hold)."""
     return T_imu_lidar if hold is None else hold.apply(T_imu_lidar)
-
-
-def _refine_summary(refined: Any) -> dict[str, Any]:
-    """What the post-PPO refinement did (``calibration.yaml`` → ``refine``)."""
-    return {
-        "policy_mode_reward": round(refined.start_reward, 6),
-        "refined_reward": round(refined.reward, 6),
-        "moved_deg": round(refined.moved_deg, 4),
-        "moved_m": round(refined.moved_m, 5),
-        **(
-            {"moved_time_offset_ms": round(1000 * refined.moved_offset_s, 3)}
-            if refined.extrinsic.time_offset_s is not None
-            else {}
-        ),
-        "evaluations": int(refined.evaluations),
-    }
-
-
-def _polish_summary(polished: Any) -> dict[str, Any]:
-    """What the Newton polish did (``calibration.yaml`` → ``polish``)."""
-    return {
-        "start_reward": round(polished.start_reward, 6),
-        "polished_reward": round(polished.reward, 6),
-        "rounds_kept": int(polished.rounds),
-        "evaluations": int(polished.evaluations),
-    }

@@ -28,6 +28,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import torch
@@ -59,6 +60,15 @@ class PolishResult:
     start_reward: float
     rounds: int
     evaluations: int
+
+    def summary(self) -> dict[str, Any]:
+        """What the polish did, for ``calibration.yaml`` → ``polish`` (rounded)."""
+        return {
+            "start_reward": round(self.start_reward, 6),
+            "polished_reward": round(self.reward, 6),
+            "rounds_kept": int(self.rounds),
+            "evaluations": int(self.evaluations),
+        }
 
 
 def stencil(n: int, scale: float = 1.0) -> np.ndarray:

@@ -28,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 import torch
@@ -65,6 +66,21 @@ class RefineResult:
     moved_m: float
     history: list[tuple[float, float, float]] = field(default_factory=list)
     moved_offset_s: float = 0.0
+
+    def summary(self) -> dict[str, Any]:
+        """What the refinement did, for ``calibration.yaml`` → ``refine`` (rounded)."""
+        return {
+            "policy_mode_reward": round(self.start_reward, 6),
+            "refined_reward": round(self.reward, 6),
+            "moved_deg": round(self.moved_deg, 4),
+            "moved_m": round(self.moved_m, 5),
+            **(
+                {"moved_time_offset_ms": round(1000 * self.moved_offset_s, 3)}
+                if self.extrinsic.time_offset_s is not None
+                else {}
+            ),
+            "evaluations": int(self.evaluations),
+        }
 
 
 def _perturb(T: torch.Tensor, xi: torch.Tensor) -> torch.Tensor:

@@ -18,7 +18,8 @@ from typing import Any
 import numpy as np
 
 COLORS = ("tab:red", "tab:green", "tab:blue")
-#: Beyond these an axis is listed as undetermined (``l2calib.training.undetermined_axes``).
+#: Beyond these an axis is listed as undetermined
+#: (``l2calib.assess.result_bounds.undetermined_axes``).
 ROT_LIMIT_DEG, TRANS_LIMIT_M = 1.0, 0.05
 
 

@@ -15,6 +15,7 @@ jointly, started from the correlation when it is observable at all.
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import Any
 
 from l2calib.pipeline import PreparedData, time_offset_bound_s
 from l2calib.recipe import Recipe
@@ -28,6 +29,18 @@ HOLD_MIN_CORRELATION = 0.95
 #: Largest disagreement (s) with a given start (the recipe's ``init_time_offset_s``, a
 #: reference's clock check) at which the correlation is held.
 HOLD_MAX_HINT_GAP_S = 0.002
+
+
+def offset_start_s(train: Any, hint_s: float | None) -> float | None:
+    """The time offset's starting mean (s), ``None`` when it is not estimated (or from 0).
+
+    The recipe's ``train.init_time_offset_s`` (the user's, e.g. from ``inspect``) wins over the
+    reference's clock-check hint ``hint_s``.
+    """
+    if not train.estimate_time_offset:
+        return None
+    start = hint_s if train.init_time_offset_s is None else train.init_time_offset_s
+    return None if start is None else float(start)  # numpy scalars would not reach the YAML
 
 
 def offset_from_rates(

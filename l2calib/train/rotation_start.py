@@ -232,7 +232,7 @@ def start_offset_s(recipe: Any, data: Any) -> float:
 
     The one the odometry runs at: held, else where its estimate starts.
     """
-    from l2calib.training import offset_start_s
+    from l2calib.train.offset_hold import offset_start_s
 
     train = recipe.train
     offset = train.known_time_offset_s

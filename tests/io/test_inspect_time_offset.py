@@ -48,7 +48,7 @@ def test_a_short_bag_is_not_estimated(scene_factory):
 
 def test_the_recipe_start_value_wins_over_the_reference_hint():
     from l2calib.recipe import TrainConfig
-    from l2calib.training import offset_start_s
+    from l2calib.train.offset_hold import offset_start_s
 
     on = TrainConfig(estimate_time_offset=True)
     assert offset_start_s(on, 0.05) == 0.05  # the gt-file clock check's hint
