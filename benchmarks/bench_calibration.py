@@ -17,7 +17,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import re
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
@@ -27,8 +26,8 @@ from typing import Any
 import numpy as np
 import torch
 from rich.console import Console
-from rich.table import Table
 
+from benchmarks.calibration_tables import console_table, render
 from benchmarks.machine import machine_info
 from l2calib import geometry as geo
 from l2calib.errors import L2CalibError
@@ -38,7 +37,6 @@ from l2calib.sim import SIMULATOR_VERSION, SimConfig, simulate
 RESULTS = Path(__file__).parent / "results"
 RIG = {"preset": None, "translation_m": (0.12, -0.05, 0.08), "rpy_deg": (180.0, 0.0, 90.0)}
 OS1_16_RIG = {"lidar": {"model": "ouster-os1-16"}, "imu": {"model": "vn100"}, "rig": RIG}
-OS1_16_NAME = "ouster-os1-16 + vn100"  # rows measured before the rig was recorded
 # The paper's hand-held rig (Livox MID-360 + MTi-300, sensors 0.75 m apart), with its recipe.
 PAPER_RIG = {"rig": {"preset": "paper-handheld"}}
 #: The MID-360 recipe's reference is ct-lidar; its kiss-icp row uses the recipe's fallback settings.
@@ -351,227 +349,6 @@ def _offset_fields(result: Any, true_s: float) -> dict[str, Any]:
     }
 
 
-def _table(rows: list[dict[str, Any]]) -> Table:
-    t = Table(title="calibration from no initial guess (simulated rigs)")
-    for col in (
-        "case",
-        "seed",
-        "|Δt| x/y/z cm",
-        "|Δr| r/p/y deg",
-        "t cm",
-        "r deg",
-        "wall s",
-        "evals",
-        "target",
-    ):
-        t.add_column(col)
-    for r in rows:
-        ok = ""
-        if r["target"]:
-            ok = (
-                "met"
-                if r["t_err_cm"] <= r["target"][0] and r["r_err_deg"] <= r["target"][1]
-                else "MISSED"
-            )
-        t.add_row(
-            r["case"],
-            str(r["train_seed"]),
-            " / ".join(f"{v:.2f}" for v in r["dt_cm"]),
-            " / ".join(f"{v:.3f}" for v in r["dr_deg"]),
-            f"{r['t_err_cm']:.2f}",
-            f"{r['r_err_deg']:.3f}",
-            f"{r['wall_s']:.0f}",
-            str(r["evaluations"]),
-            ok,
-        )
-    return t
-
-
-_AXIS = re.compile(r"^(rotation about|translation along) LiDAR ([xyz])")
-
-
-def unresolved(row: dict[str, Any]) -> str:
-    """The axes the run's resolution probe could not pin down, as ``rx ty …`` (``-``: none).
-
-    ``(disagrees!)`` marks a run warned that the odometry and the reference still disagree at
-    its result (a wrong reference, or a search stopped at a local optimum).
-    """
-    axes = set()
-    for item in row.get("undetermined", []):
-        if m := _AXIS.match(item):
-            axes.add(("r" if m[1].startswith("rotation") else "t") + m[2])
-    if row.get("vertical_hold"):
-        axes.add("t-vertical(held)")
-    if row.get("warnings"):
-        axes.add("(disagrees!)")
-    return " ".join(sorted(axes)) or "-"
-
-
-def _runs(row: dict[str, Any]) -> str:
-    """`` (2 runs)`` when PPO restarted after a failed agreement check (evaluations: all runs)."""
-    attempts = row.get("attempts") or []
-    return f" ({len(attempts)} runs)" if len(attempts) > 1 else ""
-
-
-def _markdown(rows: list[dict[str, Any]]) -> str:
-    cols = (
-        "case | rig | seed | data s | Δt x/y/z cm | Δr r/p/y deg | t cm | r deg | wall s | evals"
-        " | unresolved"
-    )
-    lines = [f"| {cols} |", "|" + "---|" * len(cols.split("|"))]
-    for r in sorted(rows, key=lambda r: (r["case"], r["train_seed"])):
-        dt = " / ".join(f"{v:.2f}" for v in r["dt_cm"])
-        dr = " / ".join(f"{v:.3f}" for v in r["dr_deg"])
-        lines.append(
-            f"| {r['case']} ({r.get('reference', '')}) | {r.get('rig', OS1_16_NAME)} | "
-            f"{r['train_seed']} | {r['data_s']} | "
-            f"{dt} | {dr} | "
-            f"{r['t_err_cm']:.2f} | {r['r_err_deg']:.3f} | {r['wall_s']:.0f} | "
-            f"{r['evaluations']}{_runs(r)} | {unresolved(r)} |"
-        )
-    return "\n".join(lines) + "\n"
-
-
-def _summary(rows: list[dict[str, Any]], failed: list[dict[str, Any]]) -> str:
-    """Per case over its training seeds: mean and worst errors, how many seeds met the target.
-
-    A failed run (no result) counts as a seed that missed the target.
-    """
-    targets = {c.name: c.target for c in cases(quick=False)}
-    names = sorted({r["case"] for r in rows} | {f["case"] for f in failed})
-    lines = [
-        "\nOver training seeds (mean / worst; wall time is the median, on whatever load the rows"
-        " record):\n",
-        "| case | seeds | failed | t cm | r deg | wall s | target |",
-        "|---|---|---|---|---|---|---|",
-    ]
-    for name in names:
-        rs = [r for r in rows if r["case"] == name]
-        n_failed = sum(f["case"] == name for f in failed)
-        t = [r["t_err_cm"] for r in rs]
-        a = [r["r_err_deg"] for r in rs]
-        errors = (
-            f"{np.mean(t):.2f} / {max(t):.2f} | {np.mean(a):.3f} / {max(a):.3f}" if rs else "- | -"
-        )
-        wall = f"{np.median([r['wall_s'] for r in rs]):.0f}" if rs else "-"
-        met, target = "-", targets.get(name)
-        if target:
-            n = sum(r["t_err_cm"] <= target[0] and r["r_err_deg"] <= target[1] for r in rs)
-            met = f"{n}/{len(rs) + n_failed} met ({target[0]:g} cm, {target[1]:g}°)"
-        lines.append(f"| {name} | {len(rs)} | {n_failed} | {errors} | {wall} | {met} |")
-    return "\n".join(lines) + "\n"
-
-
-#: ``backend.options.start_biases: auto`` landed then: before it the filters started with zero
-#: IMU biases everywhere; ``auto`` now estimates them on well-excited (hand-held) data.
-START_BIASES_AUTO = "2026-12-04 15:20"
-#: The gyro bias's integration changed then (same method, other rounding: other PPO paths).
-START_BIASES_FAST = "2026-12-04 17:05"
-#: The IEKF / GTSAM propagation stopped re-integrating the stretch past a segment's last IMU
-#: sample then (candidates with a positive time offset were penalised at each segment's end).
-END_OF_IMU_FIX = "2026-12-04 18:55"
-
-
-def _names(rows: list[dict[str, Any]], keep: Callable[[dict[str, Any]], bool]) -> str:
-    """``case (seed n)`` of the rows ``keep`` accepts, sorted and comma-separated."""
-    return ", ".join(sorted({f"{r['case']} (seed {r['train_seed']})" for r in rows if keep(r)}))
-
-
-def _dated(
-    rows: list[dict[str, Any]], prefix: str, lo: str, hi: str, reference: str | None = None
-) -> str:
-    """``case (seed n)`` of the rows whose case starts with ``prefix``, measured in ``[lo, hi)``
-    (the machine's date), and with ``reference`` as reference if given; comma-separated."""
-    return _names(
-        rows,
-        lambda r: (
-            r["case"].startswith(prefix)
-            and lo <= r.get("machine", {}).get("date", "") < hi
-            and (reference is None or r.get("reference") == reference)
-        ),
-    )
-
-
-def _before_start_biases(rows: list[dict[str, Any]]) -> str:
-    """A note naming the hand-held rows measured before the current start-bias code."""
-    zero = _dated(rows, "handheld", "", START_BIASES_AUTO)
-    earlier = _dated(rows, "handheld", START_BIASES_AUTO, START_BIASES_FAST)
-    before_fix = sum(r.get("machine", {}).get("date", "") < END_OF_IMU_FIX for r in rows)
-    md = ""
-    if before_fix:
-        md += (
-            f"\n{before_fix} of {len(rows)} rows were measured before {END_OF_IMU_FIX}, when a "
-            "filter window ending past a segment's last IMU sample integrated that stretch "
-            "again on every extra step of the batch: candidates with a positive time offset "
-            "(estimated by default) were penalised at each segment's last scan "
-            "(docs/time_offset.md). Rows after it carry a later date.\n"
-        )
-    if zero:
-        md += (
-            f"\nMeasured before `backend.options.start_biases: auto` ({START_BIASES_AUTO}; the "
-            "filters started with zero IMU biases, which `auto` now estimates on hand-held data; "
-            f"uav and ugv rows are unaffected): {zero}.\n"
-        )
-    if earlier:
-        md += (
-            f"\nMeasured with the start biases estimated by the code before {START_BIASES_FAST} "
-            "(the same method, the gyro integrated per candidate: the same estimate up to "
-            f"rounding, which sends PPO along another path): {earlier}.\n"
-        )
-    return md
-
-
-#: ``ct-lidar``'s vehicle prior (``noise_rot_deg`` / ``noise_rate_rad_s``: ``auto``) landed then:
-#: before it the ground vehicles' LiDAR-only references used the general motion prior.
-VEHICLE_PRIOR = "2026-12-07 05:00"
-
-
-def _before_vehicle_prior(rows: list[dict[str, Any]]) -> str:
-    """A note naming the ground-vehicle LiDAR-only rows measured before the vehicle prior."""
-    old = _dated(rows, "ugv", "", VEHICLE_PRIOR, reference="ct-lidar")
-    if not old:
-        return ""
-    return (
-        f"\nMeasured before `ct-lidar`'s vehicle prior ({VEHICLE_PRIOR}; their references used "
-        f'the general motion prior, docs/references.md, "The vehicle prior"): {old}.\n'
-    )
-
-
-def _before_offset_handover(rows: list[dict[str, Any]]) -> str:
-    """A note naming the ground-vehicle rows whose PPO handed over on rotation and translation
-    alone, the time offset estimated (before ``PLANAR_RATE_START``'s
-    ``train.handover_time_offset_sigma_s``, session 44)."""
-    old = _names(
-        rows,
-        lambda r: (
-            r["case"].startswith("ugv")
-            and str(r.get("stop", "")).startswith("narrow enough")
-            and not str(r.get("stop", "")).endswith("ms)")
-            and str(r.get("time_offset_method", "")).startswith("estimated jointly")
-        ),
-    )
-    if not old:
-        return ""
-    return (
-        "\nMeasured before ground vehicles' hand-over also waited for the time offset's spread "
-        "(PPO handed over on rotation and translation alone; `PLANAR_RATE_START` in "
-        'l2calib/train/vertical_hold.py, docs/backends.md, "The hand-over and the time offset"): '
-        f"{old}.\n"
-    )
-
-
-def _render(results: dict[str, Any]) -> str:
-    """The markdown of a results JSON: rows, the over-seeds summary, failed runs."""
-    md = _markdown(results["rows"]) + _summary(results["rows"], results.get("failed", []))
-    md += _before_start_biases(results["rows"]) + _before_vehicle_prior(results["rows"])
-    md += _before_offset_handover(results["rows"])
-    if results.get("failed"):
-        md += "\nFailed (no result):\n\n" + "".join(
-            f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in results["failed"]
-        )
-    return md
-
-
 def main() -> None:
     """Runs the cases, prints the table, writes JSON and markdown."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -594,8 +371,9 @@ def main() -> None:
         "--render", action="store_true", help="only rewrite the markdown from the JSON (no runs)"
     )
     args = parser.parse_args()
+    targets = {c.name: c.target for c in cases(quick=False)}
     if args.render:
-        args.out.with_suffix(".md").write_text(_render(json.loads(args.out.read_text())))
+        args.out.with_suffix(".md").write_text(render(json.loads(args.out.read_text()), targets))
         return
     torch.set_default_dtype(torch.float64)
     console = Console()
@@ -621,7 +399,8 @@ def main() -> None:
                 {"rows": out_rows, "failed": out_failed, "machine": os.uname().nodename}, indent=1
             )
         )
-        args.out.with_suffix(".md").write_text(_render({"rows": out_rows, "failed": out_failed}))
+        md = render({"rows": out_rows, "failed": out_failed}, targets)
+        args.out.with_suffix(".md").write_text(md)
         return out_rows
 
     for case in cases(args.quick):
@@ -642,9 +421,9 @@ def main() -> None:
                 failed.append({"case": case.name, "train_seed": seed, "error": str(exc)})
                 save()
                 continue
-            console.print(_table(rows[-1:]))
+            console.print(console_table(rows[-1:]))
             save()
-    console.print(_table(save()))
+    console.print(console_table(save()))
 
 
 if __name__ == "__main__":

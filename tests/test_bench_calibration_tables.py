@@ -1,6 +1,6 @@
 """The calibration benchmark's markdown: unresolved-axis labels, the over-seeds summary, notes."""
 
-from benchmarks.bench_calibration import _before_offset_handover, _runs, _summary, unresolved
+from benchmarks.calibration_tables import before_offset_handover, runs_suffix, summary, unresolved
 
 
 def _row(case: str, seed: int, t_cm: float, r_deg: float, undetermined=()) -> dict:
@@ -37,7 +37,8 @@ def test_unresolved_names_probe_axes_not_excitation_notes():
 def test_summary_counts_failed_seeds_as_missed():
     rows = [_row("handheld", 0, 0.4, 0.02), _row("handheld", 1, 3.0, 0.02)]
     failed = [{"case": "handheld", "train_seed": 2, "error": "lost track"}]
-    line = next(s for s in _summary(rows, failed).splitlines() if s.startswith("| handheld |"))
+    md = summary(rows, failed, {"handheld": (2.0, 0.5)})
+    line = next(s for s in md.splitlines() if s.startswith("| handheld |"))
     cells = [c.strip() for c in line.strip("|").split("|")]
     assert cells[1:4] == ["2", "1", "1.70 / 3.00"]
     assert cells[5] == "150"  # median wall time of the two results
@@ -46,9 +47,9 @@ def test_summary_counts_failed_seeds_as_missed():
 
 def test_restarted_runs_are_marked():
     row = _row("ugv seq 1", 0, 1.0, 0.1)
-    assert _runs(row) == "" and _runs({**row, "attempts": None}) == ""
+    assert runs_suffix(row) == "" and runs_suffix({**row, "attempts": None}) == ""
     two = [{"seed": 0, "kept": False}, {"seed": 10007, "kept": True}]
-    assert _runs({**row, "attempts": two}) == " (2 runs)"
+    assert runs_suffix({**row, "attempts": two}) == " (2 runs)"
 
 
 def test_ground_vehicle_rows_handed_over_without_the_offset_are_named():
@@ -62,8 +63,8 @@ def test_ground_vehicle_rows_handed_over_without_the_offset_are_named():
         {**_row("ugv held", 0, 1.0, 0.1), "stop": old, "time_offset_method": "known: held"},
         {**_row("handheld", 0, 1.0, 0.1), "stop": old, "time_offset_method": joint},
     ]
-    note = _before_offset_handover(rows)
+    note = before_offset_handover(rows)
     assert "ugv all ct-lidar (seed 0)" in note
     for other in ("(seed 1)", "ugv seq 1", "ugv held", "handheld"):
         assert other not in note
-    assert _before_offset_handover(rows[1:]) == ""
+    assert before_offset_handover(rows[1:]) == ""
