@@ -83,6 +83,14 @@ def cases(quick: bool) -> list[Case]:
     # The UAV recipe's own budget (ntu-viral-os1-16-vn100: 60 s): 20 s leaves the reward's
     # peak 2.9 cm from the truth on these flights, 60 s 0.7 cm (experiments/start_bias.json).
     b60 = ["selection.window_s=10", "selection.budget_s=60"]
+
+    def drive(name, model, ref, seed, route=None, rig=RIG):  # noqa: ANN001, ANN202
+        """One 60 s ground-vehicle drive (issue 27) with ``model`` and the vn100 on ``rig``."""
+        sim = {"lidar": {"model": model}, "imu": {"model": "vn100"}, "rig": rig}
+        if route is not None:
+            sim["world"] = {"route": route}
+        return Case(name, "ugv", [seed], 60.0, overrides=[*b60, f"reference.name={ref}"], sim=sim)
+
     return [
         Case("handheld", "handheld", [0], overrides=hh, target=(2.0, 0.5)),
         Case("handheld gaussian", "handheld", [0], overrides=[*hh, "policy.name=gaussian"]),
@@ -105,76 +113,42 @@ def cases(quick: bool) -> list[Case]:
         # target column, whose norm includes the held z), the whole drive selected, with the
         # exact trajectory and LiDAR-only.
         *(
-            Case(
-                f"ugv drive {model} {ref}",
-                "ugv",
-                [31],
-                60.0,
-                overrides=[*b60, f"reference.name={ref}"],
-                sim={"lidar": {"model": model}, "imu": {"model": "vn100"}, "rig": RIG},
-            )
+            drive(f"ugv drive {model} {ref}", model, ref, 31)
             for model in ("ouster-os1-16", "velodyne-vlp-16", "velodyne-vlp-32c")
             for ref in ("gt", "ct-lidar")
-        ),  # fmt: skip
+        ),
         # The same drives turning both ways (the issue's own report was a figure-8) or only right
         # (loop-cw: the same streets as the loop driven backwards). One-way loops, either way
         # round, are the LiDAR-only reference's worst case: its error in the turns follows their
         # direction and is not averaged out (docs/backends.md, "Both ways"); these rows stand
         # beside the loop's.
         *(
-            Case(
-                f"ugv {path} {model} {ref}",
-                "ugv",
-                [31],
-                60.0,
-                overrides=[*b60, f"reference.name={ref}"],
-                sim={
-                    "lidar": {"model": model},
-                    "imu": {"model": "vn100"},
-                    "rig": RIG,
-                    "world": {"route": path},
-                },
-            )
+            drive(f"ugv {path} {model} {ref}", model, ref, 31, path)
             for path in ("figure-8", "loop-cw")
             for model in ("ouster-os1-16", "velodyne-vlp-16", "velodyne-vlp-32c")
             for ref in ("gt", "ct-lidar")
-        ),  # fmt: skip
+        ),
         # Other figure-8 drives (simulator seeds 32-34: other streets' clutter, other noise),
         # LiDAR-only, one training seed each. The training seeds above share one drive's data, so
         # they show the search's spread, not how far the data's own noise moves the result — which
         # is what the per-axis bound claims to cover (benchmarks/results/uncertainty.json).
         *(
-            Case(
-                f"ugv figure-8 {model} ct-lidar drive {seed}",
-                "ugv",
-                [seed],
-                60.0,
-                overrides=[*b60, "reference.name=ct-lidar"],
-                sim={
-                    "lidar": {"model": model},
-                    "imu": {"model": "vn100"},
-                    "rig": RIG,
-                    "world": {"route": "figure-8"},
-                },
+            drive(
+                f"ugv figure-8 {model} ct-lidar drive {seed}", model, "ct-lidar", seed, "figure-8"
             )
             for seed in (32, 33, 34)
             for model in ("ouster-os1-16", "velodyne-vlp-16")
-        ),  # fmt: skip
+        ),
         # A rig no other row uses (LiDAR behind, left of and above the IMU, yawed 45 deg, upright)
         # on another figure-8 drive, LiDAR-only: that nothing above is tuned to one rig.
         *(
-            Case(
+            drive(
                 f"ugv figure-8 {model} ct-lidar other rig",
-                "ugv",
-                [35],
-                60.0,
-                overrides=[*b60, "reference.name=ct-lidar"],
-                sim={
-                    "lidar": {"model": model},
-                    "imu": {"model": "vn100"},
-                    "rig": OTHER_RIG,
-                    "world": {"route": "figure-8"},
-                },
+                model,
+                "ct-lidar",
+                35,
+                "figure-8",
+                OTHER_RIG,
             )
             for model in ("ouster-os1-16", "velodyne-vlp-32c")
         ),  # fmt: skip
