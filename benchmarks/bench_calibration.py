@@ -321,10 +321,20 @@ def run_case(
         # l2calib.train.lever_start, 2026-12-05 session 30)
         "translation_start": result.extra.get("translation_start"),
         "target": case.target,
+        # which point of each voxel the backend kept (rows without it: the earliest fired,
+        # before 2026-12-07's backend.options.voxel_point)
+        "voxel_point": _voxel_point(recipe.backend.options),
         "load": [round(x, 2) for x in os.getloadavg()],
         "machine": machine_info(),  # at the row's end; "load" above is kept for older readers
         "simulator_version": SIMULATOR_VERSION,  # rows without it: version 1
     }
+
+
+def _voxel_point(options: dict[str, Any]) -> str:
+    """The backend's ``voxel_point`` option as the run resolved it (given or the default)."""
+    from l2calib_backends.options import LioOptions
+
+    return str(options.get("voxel_point", LioOptions.model_fields["voxel_point"].default))
 
 
 def _offset_fields(result: Any, true_s: float) -> dict[str, Any]:

@@ -232,6 +232,23 @@ def before_offset_handover(rows: list[dict[str, Any]]) -> str:
     )
 
 
+def before_voxel_random(rows: list[dict[str, Any]]) -> str:
+    """A note counting the rows whose backend kept the earliest point of each voxel (rows
+    without ``voxel_point``: before ``backend.options.voxel_point: random``, session 48)."""
+    old = [r for r in rows if r.get("voxel_point", "earliest") == "earliest"]
+    if not old:
+        return ""
+    cases = sorted({r["case"] for r in old if "voxel_point=" not in r["case"]})
+    return (
+        f"\n{len(old)} of {len(rows)} rows were measured with the backend keeping the earliest "
+        "fired point of each voxel (the default before 2026-12-07 23:15, "
+        "`backend.options.voxel_point`; now a random one: on ground vehicles the earliest "
+        "point's side of a voxel follows the sweep's direction and moved the lateral lever arm "
+        'by up to 2 cm, docs/backends.md, "Which point each voxel keeps"); default cases among '
+        f"them: {', '.join(cases) or 'none'}.\n"
+    )
+
+
 def render(results: dict[str, Any], targets: dict[str, tuple[float, float] | None]) -> str:
     """The markdown of a results JSON: rows, the over-seeds summary, notes, failed runs.
 
@@ -240,6 +257,7 @@ def render(results: dict[str, Any], targets: dict[str, tuple[float, float] | Non
     rows, failed = results["rows"], results.get("failed", [])
     md = markdown_rows(rows) + summary(rows, failed, targets)
     md += before_start_biases(rows) + before_vehicle_prior(rows) + before_offset_handover(rows)
+    md += before_voxel_random(rows)
     if failed:
         md += "\nFailed (no result):\n\n" + "".join(
             f"- {r['case']} (seed {r['train_seed']}): {r['error']}\n" for r in failed

@@ -1,6 +1,12 @@
 """The calibration benchmark's markdown: unresolved-axis labels, the over-seeds summary, notes."""
 
-from benchmarks.calibration_tables import before_offset_handover, runs_suffix, summary, unresolved
+from benchmarks.calibration_tables import (
+    before_offset_handover,
+    before_voxel_random,
+    runs_suffix,
+    summary,
+    unresolved,
+)
 
 
 def _row(case: str, seed: int, t_cm: float, r_deg: float, undetermined=()) -> dict:
@@ -68,3 +74,15 @@ def test_ground_vehicle_rows_handed_over_without_the_offset_are_named():
     for other in ("(seed 1)", "ugv seq 1", "ugv held", "handheld"):
         assert other not in note
     assert before_offset_handover(rows[1:]) == ""
+
+
+def test_rows_measured_with_the_earliest_voxel_point_are_counted_and_named():
+    old = _row("ugv drive ouster-os1-16 ct-lidar", 0, 8.5, 0.13)  # no voxel_point: earliest
+    kept = {**_row("handheld with backend.options.voxel_point=earliest", 0, 0.3, 0.02)}
+    kept["voxel_point"] = "earliest"
+    new = {**_row("ugv drive ouster-os1-16 ct-lidar", 1, 8.3, 0.09), "voxel_point": "random"}
+    note = before_voxel_random([old, kept, new])
+    assert "2 of 3 rows" in note
+    assert "default cases among them: ugv drive ouster-os1-16 ct-lidar." in note
+    assert "handheld" not in note.split("default cases among them")[1]  # named by its case
+    assert before_voxel_random([new]) == ""

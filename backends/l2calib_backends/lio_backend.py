@@ -12,6 +12,7 @@ import logging
 from abc import abstractmethod
 from collections.abc import Sequence
 
+import numpy as np
 import torch
 
 from l2calib.data import Segment
@@ -99,9 +100,11 @@ class LioBackend(OdometryBackend):
                 c.min_range_m,
                 c.max_range_m,
                 c.seed + i,
+                c.voxel_point,
             )
             for i, s in enumerate(segments)
         ]
+        map_rng = np.random.default_rng(c.seed) if c.voxel_point == "random" else None
         rate = mean_rotation_rate(self._segments)
         weak = rate < c.weak_excitation_rate_rad_s
         self.window_scans = resolve_window_scans(c, self._segments)
@@ -124,7 +127,16 @@ class LioBackend(OdometryBackend):
         self._seeds = [None] * len(segments)
         if c.map_mode == "odometry":
             self._seeds = [
-                seed_points(s, r.trajectory, st, c.scan_voxel_m / 4, c.min_range_m, c.max_range_m)
+                seed_points(
+                    s,
+                    r.trajectory,
+                    st,
+                    c.scan_voxel_m / 4,
+                    c.min_range_m,
+                    c.max_range_m,
+                    c.voxel_point,
+                    map_rng,
+                )
                 for s, r, st in zip(segments, references, self._starts, strict=True)
             ]
         self._motions = [
@@ -140,6 +152,8 @@ class LioBackend(OdometryBackend):
                 c.plane_thickness_m,
                 c.min_range_m,
                 c.max_range_m,
+                c.voxel_point,
+                map_rng,
             )
 
     @abstractmethod

@@ -48,6 +48,14 @@ class LioOptions(BaseModel):
     )
     map_voxel_m: float = Field(0.5, gt=0, description="voxel edge of the plane map (m)")
     scan_voxel_m: float = Field(0.5, gt=0, description="downsampling voxel of scan points (m)")
+    voxel_point: Literal["random", "earliest", "centroid"] = Field(
+        "random",
+        description="what each voxel of the downsampling keeps (scans and the shared map): a "
+        "random point (seeded by seed); the earliest fired (before 2026-12-07: which side of "
+        "a voxel is kept then follows the sweep's direction and biased ground vehicles' "
+        "lateral lever arm by up to 2 cm); or the centroid of its points at their mean time "
+        "(PCL's VoxelGrid, as FAST-LIO; off the surface where a voxel holds a corner)",
+    )
     map_points_per_scan: int = Field(1500, ge=10, description="points inserted per scan (odometry)")
     min_range_m: float = Field(1.0, ge=0)
     max_range_m: float = Field(100.0, gt=0)

@@ -13,6 +13,7 @@ from torch import Tensor
 
 from l2calib.data import LidarScan, Segment
 from l2calib.errors import BackendError
+from l2calib.references.ct_map import voxel_keys
 from l2calib_backends.propagation import ImuTensors
 
 NS = 1e-9
@@ -55,8 +56,42 @@ class PreparedSegment:
     insert: ScanTensors
 
 
+def voxel_pick(points: np.ndarray, voxel_m: float, rng: np.random.Generator | None) -> np.ndarray:
+    """Indices of one point per ``voxel_m`` voxel of ``points`` ``[N, 3]`` (m), in voxel order.
+
+    ``rng`` given: a random point of each voxel; ``None``: the first in ``points``' order (for
+    a scan in firing order, the earliest fired, so which side of a voxel is kept follows the
+    sweep's direction).
+    """
+    order = np.arange(len(points)) if rng is None else rng.permutation(len(points))
+    _, first = np.unique(voxel_keys(points[order], voxel_m), return_index=True)
+    return order[first]
+
+
+def voxel_means(points: np.ndarray, voxel_m: float, *values: np.ndarray) -> list[np.ndarray]:
+    """The mean of ``points`` ``[N, 3]`` and of each ``values`` ``[N, ...]`` per voxel.
+
+    As PCL's ``VoxelGrid`` (FAST-LIO's downsampling): one point per occupied voxel, the
+    centroid of its points, with their mean time where a time is among ``values``.
+    """
+    _, inv, counts = np.unique(voxel_keys(points, voxel_m), return_inverse=True, return_counts=True)
+    out = []
+    for v in (points, *values):
+        flat = v.reshape(len(v), -1)
+        sums = np.zeros((len(counts), flat.shape[1]))
+        np.add.at(sums, inv.ravel(), flat)
+        out.append((sums / counts[:, None]).reshape((len(counts), *v.shape[1:])))
+    return out
+
+
 def _voxel_subsample(
-    scan: LidarScan, voxel: float, limit: int, rng: np.random.Generator, r_min: float, r_max: float
+    scan: LidarScan,
+    voxel: float,
+    limit: int,
+    rng: np.random.Generator,
+    r_min: float,
+    r_max: float,
+    voxel_point: str,
 ) -> tuple[np.ndarray, np.ndarray]:
     pts = np.asarray(scan.points_lidar, dtype=np.float64)
     off = np.asarray(scan.offset_s, dtype=np.float64)
@@ -65,8 +100,11 @@ def _voxel_subsample(
     pts, off = pts[keep], off[keep]
     if len(pts) == 0:
         return pts, off
-    ijk = np.floor(pts / voxel).astype(np.int64) + (1 << 20)  # ±1M voxels per axis
-    _, first = np.unique((ijk[:, 0] << 42) | (ijk[:, 1] << 21) | ijk[:, 2], return_index=True)
+    if voxel_point == "centroid":
+        pts, off = voxel_means(pts, voxel, off)
+        first = np.argsort(off, kind="stable")
+    else:
+        first = voxel_pick(pts, voxel, rng if voxel_point == "random" else None)
     if len(first) > limit:
         first = rng.choice(first, size=limit, replace=False)
     first.sort()
@@ -100,8 +138,13 @@ def prepare_segment(
     min_range_m: float,
     max_range_m: float,
     seed: int,
+    voxel_point: str = "earliest",
 ) -> PreparedSegment:
-    """Downsamples the scans of ``seg`` and packs scans and IMU into tensors."""
+    """Downsamples the scans of ``seg`` and packs scans and IMU into tensors.
+
+    ``voxel_point``: what each voxel keeps — ``earliest`` (the first point fired), ``random``
+    (a random point, seeded) or ``centroid`` (the mean of its points and of their times).
+    """
     scans = seg.scans
     if len(scans) < 3:
         raise BackendError(
@@ -116,11 +159,19 @@ def prepare_segment(
     upd, ins = [], []
     for scan in scans:
         upd.append(
-            _voxel_subsample(scan, scan_voxel_m, points_per_scan, rng, min_range_m, max_range_m)
+            _voxel_subsample(
+                scan, scan_voxel_m, points_per_scan, rng, min_range_m, max_range_m, voxel_point
+            )
         )
         ins.append(
             _voxel_subsample(
-                scan, scan_voxel_m / 2, map_points_per_scan, rng, min_range_m, max_range_m
+                scan,
+                scan_voxel_m / 2,
+                map_points_per_scan,
+                rng,
+                min_range_m,
+                max_range_m,
+                voxel_point,
             )
         )
     start_ns = int(seg.start_ns)
