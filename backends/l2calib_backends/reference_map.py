@@ -31,9 +31,9 @@ def reference_world_points(
 
     The reference is a trajectory of the LiDAR itself, so each point is moved by the reference
     pose interpolated at the point's own time: no extrinsic enters. Points are thinned to one per
-    ``voxel_m`` cell (``voxel_point``: the earliest fired or a random one, drawn with ``rng``,
-    before they are placed; ``centroid``: the mean of each world-frame cell's placed points),
-    and points outside the reference's time span are dropped.
+    ``voxel_m`` cell (``voxel_point``: the earliest fired or a random one, drawn with ``rng``
+    or seed 0, before they are placed; ``centroid``: the mean of each world-frame cell's placed
+    points), and points outside the reference's time span are dropped.
     """
     pts = np.asarray(scan.points_lidar, dtype=np.float64)
     range_m = np.linalg.norm(pts, axis=1)
@@ -41,6 +41,8 @@ def reference_world_points(
     if voxel_point == "centroid":
         sel = keep
     else:
+        if voxel_point == "random" and rng is None:
+            rng = np.random.default_rng(0)
         pick = voxel_pick(pts[keep], voxel_m, rng if voxel_point == "random" else None)
         sel = keep[np.sort(pick)]
     stamps = scan.point_stamps_ns[sel]
