@@ -238,7 +238,15 @@ def before_voxel_random(rows: list[dict[str, Any]]) -> str:
     old = [r for r in rows if r.get("voxel_point", "earliest") == "earliest"]
     if not old:
         return ""
-    cases = sorted({r["case"] for r in old if "voxel_point=" not in r["case"]})
+    named = [r for r in old if "voxel_point=" not in r["case"]]
+    fresh = {r["case"] for r in rows if r.get("voxel_point", "earliest") != "earliest"}
+    seeds: dict[str, list[int]] = {}
+    for r in named:
+        seeds.setdefault(r["case"], []).append(r["train_seed"])
+    cases = [  # a case with rows of both kinds names its old seeds
+        f"{c} (seed {', '.join(map(str, sorted(seeds[c])))})" if c in fresh else c
+        for c in sorted(seeds)
+    ]
     return (
         f"\n{len(old)} of {len(rows)} rows were measured with the backend keeping the earliest "
         "fired point of each voxel (the default before 2026-12-07 23:15, "

@@ -83,6 +83,9 @@ def test_rows_measured_with_the_earliest_voxel_point_are_counted_and_named():
     new = {**_row("ugv drive ouster-os1-16 ct-lidar", 1, 8.3, 0.09), "voxel_point": "random"}
     note = before_voxel_random([old, kept, new])
     assert "2 of 3 rows" in note
-    assert "default cases among them: ugv drive ouster-os1-16 ct-lidar." in note
+    assert "default cases among them: ugv drive ouster-os1-16 ct-lidar (seed 0)." in note
+    other = {**_row("ugv all", 1, 1.0, 0.1)}  # every row of its case old: named without seeds
+    both = before_voxel_random([old, new, other])
+    assert "them: ugv all, ugv drive ouster-os1-16 ct-lidar (seed 0)." in both
     assert "handheld" not in note.split("default cases among them")[1]  # named by its case
     assert before_voxel_random([new]) == ""
