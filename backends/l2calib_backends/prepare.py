@@ -13,7 +13,7 @@ from torch import Tensor
 
 from l2calib.data import LidarScan, Segment
 from l2calib.errors import BackendError
-from l2calib.references.ct_map import voxel_keys
+from l2calib.references.ct_map import voxel_keys, voxel_pick
 from l2calib_backends.propagation import ImuTensors
 
 NS = 1e-9
@@ -54,18 +54,6 @@ class PreparedSegment:
     imu: ImuTensors
     update: ScanTensors
     insert: ScanTensors
-
-
-def voxel_pick(points: np.ndarray, voxel_m: float, rng: np.random.Generator | None) -> np.ndarray:
-    """Indices of one point per ``voxel_m`` voxel of ``points`` ``[N, 3]`` (m), in voxel order.
-
-    ``rng`` given: a random point of each voxel; ``None``: the first in ``points``' order (for
-    a scan in firing order, the earliest fired, so which side of a voxel is kept follows the
-    sweep's direction).
-    """
-    order = np.arange(len(points)) if rng is None else rng.permutation(len(points))
-    _, first = np.unique(voxel_keys(points[order], voxel_m), return_index=True)
-    return order[first]
 
 
 def voxel_means(points: np.ndarray, voxel_m: float, *values: np.ndarray) -> list[np.ndarray]:

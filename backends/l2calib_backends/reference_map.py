@@ -13,9 +13,10 @@ import torch
 
 from l2calib.data import LidarScan, Segment
 from l2calib.interfaces import ReferenceTrajectory
+from l2calib.references.ct_map import voxel_pick
 from l2calib.trajectory import Trajectory
 from l2calib_backends.plane_map import FrozenPlaneMap, VoxelPlaneMap
-from l2calib_backends.prepare import ScanTensors, voxel_means, voxel_pick
+from l2calib_backends.prepare import ScanTensors, voxel_means
 
 
 def reference_world_points(

@@ -22,13 +22,23 @@ def voxel_keys(points: np.ndarray, voxel_m: float) -> np.ndarray:
     return (idx[:, 0] << 42) | (idx[:, 1] << 21) | idx[:, 2]
 
 
+def voxel_pick(points: np.ndarray, voxel_m: float, rng: np.random.Generator | None) -> np.ndarray:
+    """Indices of one point per ``voxel_m`` voxel of ``points`` ``[N, 3]`` (m), in voxel order.
+
+    ``rng`` given: a random point of each voxel; ``None``: the first in ``points``' order (for
+    a scan in firing order, the earliest fired, so which side of a voxel is kept follows the
+    sweep's direction).
+    """
+    order = np.arange(len(points)) if rng is None else rng.permutation(len(points))
+    _, first = np.unique(voxel_keys(points[order], voxel_m), return_index=True)
+    return order[first]
+
+
 def voxel_subsample(points: np.ndarray, voxel_m: float, rng: np.random.Generator) -> np.ndarray:
-    """Indices of one random point per ``voxel_m`` voxel of ``points`` ``[N, 3]``."""
+    """Sorted indices of one random point per ``voxel_m`` voxel of ``points`` ``[N, 3]``."""
     if len(points) == 0:
         return np.zeros(0, np.int64)
-    order = rng.permutation(len(points))
-    _, first = np.unique(voxel_keys(points[order], voxel_m), return_index=True)
-    return np.sort(order[first])
+    return np.sort(voxel_pick(points, voxel_m, rng))
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from l2calib_backends.prepare import voxel_means, voxel_pick
+from l2calib.references.ct_map import voxel_pick
+from l2calib_backends.prepare import voxel_means
 
 
 def _sweep(n: int = 2000) -> np.ndarray:
