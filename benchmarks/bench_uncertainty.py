@@ -129,9 +129,44 @@ def summary(rows: list[dict[str, Any]]) -> dict[str, Any]:
     }
 
 
+def stale_runs(rows: list[dict[str, Any]], calibrations: list[dict[str, Any]]) -> set:
+    """(case, train_seed) of the rows assessed at another result than the stored calibration's.
+
+    A calibration re-run after its row was assessed leaves the row's true error (and bounds) at
+    the old result. Detected without a stored transform: the norm of the rotation error must be
+    the calibration row's ``r_err_deg`` (stored to 0.001 deg) and that of the translation error
+    its ``t_err_cm`` (to 0.01 cm); a row whose calibration is gone is stale too.
+    """
+    stored = {(c["case"], c["train_seed"]): c for c in calibrations}
+    stale = set()
+    for r in rows:
+        key = (r["case"], r["train_seed"])
+        c = stored.get(key)
+        rot, trans = np.linalg.norm(r["error"][:3]), np.linalg.norm(r["error"][3:6])
+        if c is None or abs(rot - c["r_err_deg"]) > 2e-3 or abs(trans - c["t_err_cm"]) > 3e-2:
+            stale.add(key)
+    return stale
+
+
+def _stale_note(rows: list[dict[str, Any]], stale: set) -> str:
+    """A line naming the cases to re-assess, or nothing."""
+    if not stale:
+        return ""
+    cases = list(dict.fromkeys(r["case"] for r in rows if (r["case"], r["train_seed"]) in stale))
+    return (
+        f"**{len(stale)} runs (marked *stale*) were assessed at an earlier result of their "
+        "calibration, which has been re-run since; their cells are not today's. Re-run: "
+        "`python -m benchmarks.bench_uncertainty --cases "
+        + " ".join(f'"{c}"' for c in cases)
+        + "`.**\n"
+    )
+
+
 def render(result: dict[str, Any], out: Path) -> None:
     """Markdown table and the log-log plot."""
     s = result["summary"]
+    calibrations = json.loads((RESULTS / "calibration.json").read_text())["rows"]
+    stale = stale_runs(result["rows"], calibrations)
     lines = [
         "# Per-axis uncertainty against the true error (issue 25)\n",
         f"{len(result['rows'])} runs, {s['axis_runs']} axis-runs: true error inside the 95 % "
@@ -140,6 +175,7 @@ def render(result: dict[str, Any], out: Path) -> None:
         f"axis held and named: {s['ugv_vertical_held_and_named']} / {s['ugv_runs']}; hand-held "
         f"runs below 1 cm / 0.2° with an undetermined axis: "
         f"{s['good_handheld_with_undetermined']} / {s['good_handheld_runs']}.\n",
+        _stale_note(result["rows"], stale),
         "Units: rotation deg, translation cm, offset ms. Cells: true error / 95 % bound "
         "(∞: flat; held: not estimated).\n",
         "| case | seed | " + " | ".join(AXES) + " | undetermined |",
@@ -156,7 +192,8 @@ def render(result: dict[str, Any], out: Path) -> None:
             mark = "**" if b is not None and a not in r["held"] and e > b else ""
             cells.append(f"{mark}{e:.3g} / {text}{mark}")
         und = "; ".join(u.split(":")[0] for u in r["undetermined"]) or "—"
-        lines.append(f"| {r['case']} | {r['train_seed']} | " + " | ".join(cells) + f" | {und} |")
+        seed = f"{r['train_seed']}" + (" *stale*" if (r["case"], r["train_seed"]) in stale else "")
+        lines.append(f"| {r['case']} | {seed} | " + " | ".join(cells) + f" | {und} |")
     out.with_suffix(".md").write_text("\n".join(lines) + "\n")
     _plot(result["rows"], out.with_suffix(".png"))
 
