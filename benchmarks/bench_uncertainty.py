@@ -97,6 +97,7 @@ def assess_row(env, runs, recipe, hold, row: dict[str, Any]) -> dict[str, Any]:
         "held": [AXES[i] for i in unc.held], "blocks": unc.blocks, "scans": unc.scans,
         "tau": round(unc.tau, 2),
         "undetermined": named, "evaluations": unc.evaluations,
+        "T_imu_lidar": row["T_imu_lidar"],  # the result assessed (stale_runs)
     }  # fmt: skip
 
 
@@ -133,18 +134,33 @@ def stale_runs(rows: list[dict[str, Any]], calibrations: list[dict[str, Any]]) -
     """(case, train_seed) of the rows assessed at another result than the stored calibration's.
 
     A calibration re-run after its row was assessed leaves the row's true error (and bounds) at
-    the old result. Detected without a stored transform: the norm of the rotation error must be
-    the calibration row's ``r_err_deg`` (stored to 0.001 deg) and that of the translation error
-    its ``t_err_cm`` (to 0.01 cm); a row whose calibration is gone is stale too.
+    the old result. Rows record the ``T_imu_lidar`` they assessed; older rows do not, and are
+    compared by their errors' sizes: the rotation error's norm must be the calibration's
+    ``r_err_deg`` (stored to 0.001 deg) and the translation error's its ``t_err_cm`` (to 0.01
+    cm) — on ground vehicles the horizontal part's (LiDAR x / y against IMU x / y, both frames'
+    z vertical), since the held vertical's 8 cm would hide a changed lateral lever arm. A row
+    whose calibration is gone is stale too.
     """
     stored = {(c["case"], c["train_seed"]): c for c in calibrations}
     stale = set()
     for r in rows:
         key = (r["case"], r["train_seed"])
         c = stored.get(key)
-        rot, trans = np.linalg.norm(r["error"][:3]), np.linalg.norm(r["error"][3:6])
-        if c is None or abs(rot - c["r_err_deg"]) > 2e-3 or abs(trans - c["t_err_cm"]) > 3e-2:
+        if c is None:
             stale.add(key)
+        elif "T_imu_lidar" in r:
+            if not np.allclose(r["T_imu_lidar"], c["T_imu_lidar"], rtol=0.0, atol=1e-9):
+                stale.add(key)
+        else:
+            e, dt = np.asarray(r["error"][:6], dtype=float), np.asarray(c["dt_cm"], dtype=float)
+            tol = 3e-2
+            if "trans z" in r.get("held", []):
+                trans, expected = np.hypot(e[3], e[4]), np.hypot(dt[0], dt[1])
+                tol += e[5] * np.radians(c["r_err_deg"])  # the held error, tilted by the result
+            else:
+                trans, expected = np.linalg.norm(e[3:6]), c["t_err_cm"]
+            if abs(np.linalg.norm(e[:3]) - c["r_err_deg"]) > 2e-3 or abs(trans - expected) > tol:
+                stale.add(key)
     return stale
 
 
